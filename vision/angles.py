@@ -35,7 +35,9 @@ class ContactAngles:
     bot_mm: np.ndarray
 
 
-def outer_wall_gap(centreline_mm: np.ndarray, radius_mm: np.ndarray, phantom: Phantom) -> np.ndarray:
+def outer_wall_gap(
+    centreline_mm: np.ndarray, radius_mm: np.ndarray, phantom: Phantom, theta: np.ndarray | None = None
+) -> np.ndarray:
     """Gap (mm) between the array's outer edge and the outer wall at each centreline point.
 
     Parameters
@@ -46,14 +48,18 @@ def outer_wall_gap(centreline_mm: np.ndarray, radius_mm: np.ndarray, phantom: Ph
         Half the array's width (mm) at each point.
     phantom : Phantom
         Phantom configuration.
+    theta : ndarray, shape (n,), optional
+        The points' SPEC angles (rad); computed when not given.
 
     Returns
     -------
     ndarray, shape (n,)
-        Distance from the centreline to the outer wall, less the radius (mm); negative where the
+        Distance from the centreline to the outer wall of its own turn, less the radius (mm); negative where the
         outline crosses the wall.
     """
-    distance, _, _ = phantom.outer_wall.project(centreline_mm)
+    if theta is None:
+        theta = point_angle(centreline_mm, phantom)
+    distance, _, _ = phantom.outer_wall.project(centreline_mm, theta)
     return distance - np.asarray(radius_mm, dtype=float)
 
 
@@ -88,9 +94,9 @@ def contact_angles(
         tip ``theta_bot = theta_tip`` and ``theta_con = 0``.
     """
     centreline_mm = np.atleast_2d(np.asarray(centreline_mm, dtype=float))
-    if gap_mm is None:
-        gap_mm = outer_wall_gap(centreline_mm, radius_mm, phantom)
     theta = point_angle(centreline_mm, phantom)
+    if gap_mm is None:
+        gap_mm = outer_wall_gap(centreline_mm, radius_mm, phantom, theta)
     tip = centreline_mm[0]
     theta_tip = float(theta[0])
     touching = np.asarray(gap_mm) <= contact_tol_mm

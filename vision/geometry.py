@@ -222,13 +222,43 @@ class Polyline:
     def _tree(self) -> cKDTree:
         return cKDTree(self.points)
 
-    def project(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    @cached_property
+    def _turn_trees(self) -> list[tuple[int, cKDTree]]:
+        """Overlapping pieces one turn long, starting every half turn: (first index, tree)."""
+        lo, hi = float(self.theta[0]), float(self.theta[-1])
+        n = max(1, int(np.ceil((hi - lo) / np.pi)) - 1)
+        pieces = []
+        for j in range(n):
+            a, b = np.searchsorted(self.theta, [lo + j * np.pi, lo + j * np.pi + 2 * np.pi], side="right")
+            a = max(a - 1, 0)
+            pieces.append((int(a), cKDTree(self.points[a : max(b, a + 2)])))
+        return pieces
+
+    def _nearest_vertex(self, xy: np.ndarray, theta: np.ndarray | None) -> np.ndarray:
+        if theta is None:
+            return self._tree.query(xy)[1]
+        pieces = self._turn_trees
+        j = np.clip(np.round((theta - self.theta[0] - np.pi) / np.pi), 0, len(pieces) - 1).astype(int)
+        idx = np.empty(len(xy), dtype=int)
+        for k in np.unique(j):
+            sel = j == k
+            first, tree = pieces[k]
+            idx[sel] = first + tree.query(xy[sel])[1]
+        return idx
+
+    def project(
+        self, xy: np.ndarray, theta: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest points on the polyline.
 
         Parameters
         ----------
         xy : ndarray, shape (m, 2)
             Query points (mm).
+        theta : ndarray, shape (m,), optional
+            The points' angles (rad, SPEC unwrapped). When given, each point is projected onto
+            the part of the polyline within about half a turn of its own angle, so a point next
+            to the inner wall is not matched with the outer wall of the next turn in.
 
         Returns
         -------
@@ -242,7 +272,7 @@ class Polyline:
         """
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         n = len(self.points)
-        _, idx = self._tree.query(xy)
+        idx = self._nearest_vertex(xy, None if theta is None else np.asarray(theta, dtype=float))
         best_d = np.full(len(xy), np.inf)
         best = np.zeros((len(xy), 3))
         for lo in (idx - 1, idx):  # the two segments that meet at the nearest vertex
@@ -425,8 +455,10 @@ def point_angle(xy: np.ndarray, phantom: Phantom = DEFAULT_PHANTOM) -> np.ndarra
     rho = np.hypot(xy[:, 0], xy[:, 1])
     n_turns = int(np.ceil((phantom.theta_end + np.pi) / (2 * np.pi))) + 1
     cand = phi[:, None] + 2 * np.pi * np.arange(n_turns)[None, :]
-    r = backbone_radius(np.clip(cand, phantom.theta_start, phantom.theta_end), phantom)
-    k = np.argmin(np.abs(r - rho[:, None]), axis=1)
+    clipped = np.clip(cand, phantom.theta_start, phantom.theta_end)
+    r = backbone_radius(clipped, phantom)
+    # a small penalty (mm/rad) beyond the channel's ends breaks ties in favour of the channel
+    k = np.argmin(np.abs(r - rho[:, None]) + 0.1 * np.abs(cand - clipped), axis=1)
     theta = phi + 2 * np.pi * k
     return np.where(in_entry(xy, phantom), phi, theta)
 

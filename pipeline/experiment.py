@@ -1,0 +1,136 @@
+"""Synthetic experiments: a set of rendered insertion videos with a manifest and exact truth.
+
+``tympani render`` calls :func:`render_experiment`. One experiment is one camera set-up (one
+pose, one look) and several trials per insertion speed; trials differ in how the contact run
+grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is written::
+
+    OUT/manifest.csv           trial, speed_mm_s, video, fps, video_t0_s (SPEC §6)
+    OUT/videos/<trial>.mp4     (or a PNG folder with --png)
+    OUT/truth/<trial>.csv      per frame: time_s, depth_mm, theta_tip, theta_bot, theta_con, ...
+    OUT/truth/pose.json        the camera pose (SPEC registration keys) and the render settings
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from vision.rendering import (
+    ArrayShape,
+    ContactPolicy,
+    VideoSpec,
+    random_appearance,
+    random_nuisance,
+    random_pose,
+    render_video,
+)
+
+from .io import atomic_write_csv, atomic_write_json
+
+__all__ = ["ExperimentConfig", "random_policy", "render_experiment"]
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """What a synthetic experiment contains.
+
+    Parameters
+    ----------
+    speeds_mm_s : tuple of float
+        Insertion speeds (mm/s).
+    trials : int
+        Repeats per speed.
+    depth_mm : float
+        Final insertion depth (mm).
+    fps : float
+        Frame rate (1/s).
+    max_frames : int or None
+        Cap on frames per video (time is subsampled evenly beyond it; fps is then lowered to
+        match so that ``frame / fps`` stays the frame time).
+    width, height : int
+        Frame size (px).
+    nuisance : float
+        Nuisance strength 0 (clean) to 1 (heavy).
+    png : bool
+        Write PNG folders instead of mp4 files.
+    """
+
+    speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
+    trials: int = 2
+    depth_mm: float = 15.0
+    fps: float = 30.0
+    max_frames: int | None = 120
+    width: int = 640
+    height: int = 480
+    nuisance: float = 0.3
+    png: bool = False
+
+
+def random_policy(rng: np.random.Generator) -> ContactPolicy:
+    """A plausible, random way for the contact run to grow during one insertion."""
+    shape = ArrayShape(
+        departure_rad=float(rng.uniform(0.35, 0.7)),
+        far_offset=float(rng.uniform(-0.7, 0.2)),
+        start_blend_rad=float(rng.uniform(0.4, 0.8)),
+    )
+    return ContactPolicy(
+        theta_first=float(rng.uniform(1.0, 1.8)),
+        lag=float(rng.uniform(0.15, 0.45)),
+        approach_rad=float(rng.uniform(0.4, 0.8)),
+        shape=shape,
+    )
+
+
+def _trial_name(speed: float, k: int) -> str:
+    return f"v{speed:g}_t{k + 1:02d}".replace(".", "p")
+
+
+def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentConfig(), *, seed: int = 0) -> pd.DataFrame:
+    """Render a synthetic experiment to ``out_dir`` and return its manifest.
+
+    Parameters
+    ----------
+    out_dir : path
+        Output folder (created).
+    cfg : ExperimentConfig
+        What to render.
+    seed : int
+        Seed of everything random (pose, look, contact growth, noise).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The manifest (also written as ``manifest.csv``).
+    """
+    out = Path(out_dir)
+    rng = np.random.default_rng(seed)
+    pose = random_pose(rng, cfg.width, cfg.height, px_per_mm=(20.0, 40.0))
+    look = random_appearance(rng)
+    rows = []
+    for speed in cfg.speeds_mm_s:
+        for k in range(cfg.trials):
+            trial = _trial_name(speed, k)
+            duration = (cfg.depth_mm + 1.0) / speed
+            n_frames = int(duration * cfg.fps) + 1
+            fps = cfg.fps if cfg.max_frames is None or n_frames <= cfg.max_frames else (cfg.max_frames - 1) / duration
+            spec = VideoSpec(
+                pose=pose, width=cfg.width, height=cfg.height, fps=fps, speed_mm_s=speed,
+                start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, policy=random_policy(rng),
+                appearance=look, nuisance=random_nuisance(rng, cfg.nuisance),
+            )
+            name = Path("videos") / (trial if cfg.png else f"{trial}.mp4")
+            truth = render_video(out / name, spec, seed=int(rng.integers(2**31)))
+            truth.insert(0, "trial", trial)
+            atomic_write_csv(truth, out / "truth" / f"{trial}.csv")
+            rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), fps=fps, video_t0_s=0.0))
+    manifest = pd.DataFrame(rows)
+    atomic_write_csv(manifest, out / "manifest.csv")
+    atomic_write_json(
+        dict(pose=dict(asdict(pose), residual_px=0.0), appearance=asdict(look), config=asdict(cfg), seed=seed),
+        out / "truth" / "pose.json",
+    )
+    return manifest

@@ -1,0 +1,507 @@
+"""Lazy frame sources: a video file or a folder of still frames, decoded on demand.
+
+``open_frames(path, fps=...)`` returns a :class:`FrameSource`. Iterating it streams
+:class:`Frame` objects (index, time in s, image) one at a time, so a video is never held in
+memory whole; ``source[i]`` fetches a single frame; ``len(source)`` is the number of frames
+(an estimate for videos until they have been read once, see :meth:`VideoFrames.__len__`).
+
+A source holds no open file handle between calls: each iteration opens its own decoder and
+closes it at the end. A source can therefore be pickled and iterated in a worker process, and
+iterated twice.
+
+Video time stamps
+-----------------
+For a video, ``time_s`` is the decoder's presentation time stamp (``CAP_PROP_POS_MSEC``)
+relative to frame 0 when it is *sane*: finite, strictly increasing, and within
+``0.5 s + 10 %`` of ``index / fps``. Otherwise the frame gets the previous frame's time plus
+``1 / fps`` and the source records a warning. Passing ``fps`` for a video overrides the file's
+clock altogether (``time_s = index / fps``), for footage stored at another rate than it was
+recorded (high-speed cameras). Frames are counted as decoded; the container's frame count is only
+used for :func:`len` before a first full pass and to detect truncated files.
+
+Damaged input
+-------------
+- missing path, a path that is neither a folder nor a video OpenCV can open (including an mp4 cut
+  before its index), or a video whose first frame does not decode: :class:`InputError` when
+  the source is opened;
+- a video that stops decoding early (truncated or corrupt in the middle): iteration yields the
+  frames that decode, then stops and appends a message to :attr:`FrameSource.warnings`;
+- a folder without PNG/JPEG files, without ``fps``, with an unreadable image or with images of
+  different sizes: :class:`InputError` naming the offending file. Frames are *not* resized: a
+  size change in a folder means frames from different recordings were mixed.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from vision.errors import InputError
+
+__all__ = [
+    "Frame",
+    "FrameSource",
+    "VideoFrames",
+    "FolderFrames",
+    "IMAGE_SUFFIXES",
+    "open_frames",
+    "to_gray",
+]
+
+#: File name endings (lower case) of the still frames a folder source reads.
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg")
+
+_MAX_FPS = 1.0e5  # frames/s; anything above is a broken header, not a camera
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame.
+
+    Parameters
+    ----------
+    index : int
+        Position in the source, counting decoded frames from 0.
+    time_s : float
+        Time (s) of the frame relative to frame 0.
+    image : ndarray
+        The image as decoded: ``(h, w, 3)`` BGR or ``(h, w)`` grey, ``uint8``.
+    """
+
+    index: int
+    time_s: float
+    image: np.ndarray
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _check_fps(path: Path, fps: float | None) -> float | None:
+    """Validate a user-supplied frame rate (frames/s); ``None`` passes through."""
+    if fps is None:
+        return None
+    try:
+        value = float(fps)
+    except (TypeError, ValueError):
+        raise InputError(path, f"invalid frame rate {fps!r} (frames per second expected)") from None
+    if not (math.isfinite(value) and 0.0 < value <= _MAX_FPS):
+        raise InputError(path, f"invalid frame rate {fps!r} (must be a positive number of frames per second)")
+    return value
+
+
+def _natural_key(name: str) -> list:
+    """Sort key that orders ``frame2`` before ``frame10`` (and agrees with plain order on
+    zero-padded names)."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def to_gray(image: np.ndarray, *, as_float: bool = False) -> np.ndarray:
+    """Greyscale version of a decoded image.
+
+    Parameters
+    ----------
+    image : ndarray
+        ``(h, w)``, ``(h, w, 1)``, ``(h, w, 3)`` BGR or ``(h, w, 4)`` BGRA image; ``uint8``
+        (0–255), ``uint16`` (0–65535) or float (0–1, values outside are clipped).
+    as_float : bool
+        False: return ``uint8`` grey levels 0–255. True: return ``float32`` intensities in
+        [0, 1] (the ``uint8`` levels divided by 255).
+
+    Returns
+    -------
+    ndarray, shape (h, w)
+        ``uint8`` or ``float32`` grey image (a new array; the input is not modified).
+    """
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (3, 4)):
+        raise ValueError(f"expected a (h, w), (h, w, 3) or (h, w, 4) image, got shape {img.shape}")
+    if img.dtype != np.uint8:
+        if img.dtype == np.uint16:
+            img = (img.astype(np.uint32) * 255 + 32767) // 65535
+        elif np.issubdtype(img.dtype, np.floating):
+            img = np.clip(np.nan_to_num(img), 0.0, 1.0) * 255.0 + 0.5
+        else:
+            img = np.clip(img, 0, 255)
+        img = img.astype(np.uint8)
+    if img.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        grey = cv2.cvtColor(np.ascontiguousarray(img), code)
+    else:
+        grey = img.copy()
+    if as_float:
+        return grey.astype(np.float32) * np.float32(1.0 / 255.0)
+    return grey
+
+
+# --------------------------------------------------------------------------- sources
+
+
+class FrameSource(abc.ABC):
+    """A sequence of frames decoded lazily.
+
+    Attributes
+    ----------
+    path : Path
+        The video file or the folder of frames.
+    fps : float
+        Frame rate (frames/s) used for ``index / fps`` times.
+    shape : tuple of int
+        ``(height, width)`` in px of the frames.
+    warnings : list of str
+        Problems met while decoding (truncation, unusable time stamps), one line each, in the
+        order found; they do not stop a run.
+    """
+
+    kind: str = ""
+
+    def __init__(self, path: Path, fps: float, shape: tuple[int, int]) -> None:
+        self.path = path
+        self.fps = fps
+        self.shape = shape
+        self.warnings: list[str] = []
+
+    def _warn(self, message: str) -> None:
+        if message not in self.warnings:
+            self.warnings.append(message)
+
+    @abc.abstractmethod
+    def __iter__(self) -> Iterator[Frame]:
+        """Stream the frames from the first to the last decodable one."""
+
+    @abc.abstractmethod
+    def __len__(self) -> int:
+        """Number of frames."""
+
+    @abc.abstractmethod
+    def __getitem__(self, index: int) -> Frame:
+        """One frame by position (decodes only what is needed to reach it)."""
+
+    def info(self) -> dict:
+        """What the source is, for provenance records (JSON-compatible)."""
+        return {"kind": self.kind, "fps": self.fps, "height_px": self.shape[0], "width_px": self.shape[1]}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.path)!r}, fps={self.fps:g}, shape={self.shape})"
+
+
+class VideoFrames(FrameSource):
+    """Frames of a video file decoded with OpenCV (``cv2.VideoCapture``).
+
+    Parameters
+    ----------
+    path : Path
+        A video file OpenCV can read (mp4, avi, ...).
+    fps : float, optional
+        Frame rate (frames/s) that overrides the file's clock: frame ``i`` is at ``i / fps`` s.
+        Without it the decoder's time stamps are used (see the module notes) and the file's
+        declared rate is the fallback.
+
+    Raises
+    ------
+    InputError
+        The file cannot be opened as a video, its first frame does not decode, or it declares
+        no usable frame rate and ``fps`` is not given.
+    """
+
+    kind = "video"
+
+    def __init__(self, path: Path, *, fps: float | None = None) -> None:
+        path = Path(path)
+        user_fps = _check_fps(path, fps)
+        cap = cv2.VideoCapture(str(path))
+        try:
+            if not cap.isOpened():
+                raise InputError(
+                    path, "not a video OpenCV can read (unknown format, empty, or cut before its index)"
+                )
+            declared_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+            declared_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+            try:
+                ok, first = cap.read()
+            except cv2.error:
+                ok, first = False, None
+            if not ok or first is None:
+                raise InputError(path, "no decodable frames")
+            t0_ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
+        finally:
+            cap.release()
+        if user_fps is not None:
+            rate, self.fps_source = user_fps, "user"
+        elif math.isfinite(declared_fps) and 0.0 < declared_fps <= _MAX_FPS:
+            rate, self.fps_source = declared_fps, "file"
+        else:
+            raise InputError(path, "the video declares no valid frame rate; give one (--fps)")
+        super().__init__(path, rate, (int(first.shape[0]), int(first.shape[1])))
+        self.declared_count = max(declared_count, 0)
+        self._t0_ms = t0_ms if math.isfinite(t0_ms) else 0.0
+        self._n_decoded: int | None = None
+
+    # -- decoding
+
+    def _open(self) -> cv2.VideoCapture:
+        cap = cv2.VideoCapture(str(self.path))
+        if not cap.isOpened():
+            raise InputError(self.path, "could not be reopened as a video (was it changed or removed?)")
+        return cap
+
+    def _decoder_time(self, cap: cv2.VideoCapture, index: int, prev_s: float | None) -> float | None:
+        """The decoder's time (s) of the frame just read, or None when it is not sane."""
+        if self.fps_source == "user":
+            return None
+        t = (float(cap.get(cv2.CAP_PROP_POS_MSEC)) - self._t0_ms) / 1000.0
+        nominal = index / self.fps
+        if not math.isfinite(t) or abs(t - nominal) > 0.5 + 0.1 * nominal:
+            return None
+        if index == 0:
+            return 0.0
+        if prev_s is not None and t <= prev_s:
+            return None
+        return t
+
+    def __iter__(self) -> Iterator[Frame]:
+        cap = self._open()
+        try:
+            index, prev_s, n_fallback = 0, None, 0
+            while True:
+                try:
+                    ok, image = cap.read()
+                except cv2.error as exc:  # some builds raise instead of returning False
+                    self._warn(f"decoding stopped at frame {index}: {' '.join(str(exc).split())}")
+                    break
+                if not ok or image is None:
+                    break
+                t = self._decoder_time(cap, index, prev_s)
+                if t is None:
+                    t = index / self.fps if prev_s is None else prev_s + 1.0 / self.fps
+                    n_fallback += self.fps_source != "user"
+                yield Frame(index, t, image)
+                prev_s = t
+                index += 1
+        finally:
+            cap.release()
+        if index == 0:
+            raise InputError(self.path, "no decodable frames")
+        self._n_decoded = index
+        if n_fallback:
+            self._warn(f"{n_fallback} of {index} frames had no usable decoder time stamp; used 1/fps steps")
+        if self.declared_count and index < self.declared_count:
+            self._warn(
+                f"decoded {index} of the {self.declared_count} frames the file declares "
+                "(truncated or corrupt file, or a wrong frame count)"
+            )
+
+    def count(self) -> int:
+        """Exact number of decodable frames (decodes the whole video once if not yet known)."""
+        if self._n_decoded is None:
+            cap = self._open()
+            n = 0
+            try:
+                while cap.grab():
+                    n += 1
+            except cv2.error:
+                pass
+            finally:
+                cap.release()
+            self._n_decoded = n
+        return self._n_decoded
+
+    def __len__(self) -> int:
+        """Number of frames: the decoded count after a full pass, before that the count the
+        file declares (an estimate: containers are often off by a few frames); when the file
+        declares none, the frames are counted by decoding."""
+        if self._n_decoded is not None:
+            return self._n_decoded
+        if self.declared_count > 0:
+            return self.declared_count
+        return self.count()
+
+    def __getitem__(self, index: int) -> Frame:
+        """Frame ``index`` (negative counts from the end of the exact count).
+
+        Seeks with ``CAP_PROP_POS_FRAMES`` and checks where the decoder landed; if the seek is
+        refused or inexact, decodes sequentially from the start. Meant for a few frames; to
+        visit many, iterate.
+        """
+        if not isinstance(index, (int, np.integer)):
+            raise TypeError(f"frame index must be an int, not {type(index).__name__}")
+        index = int(index)
+        if index < 0:
+            index += self.count()
+            if index < 0:
+                raise IndexError("frame index out of range")
+        cap = self._open()
+        try:
+            image = None
+            if index > 0 and cap.set(cv2.CAP_PROP_POS_FRAMES, index):
+                ok, img = cap.read()
+                if ok and img is not None and int(round(cap.get(cv2.CAP_PROP_POS_FRAMES))) == index + 1:
+                    image = img
+            if image is None:  # sequential fallback
+                cap.release()
+                cap = self._open()
+                for _ in range(index):
+                    if not cap.grab():
+                        raise IndexError(f"frame index {index} out of range")
+                ok, image = cap.read()
+                if not ok or image is None:
+                    raise IndexError(f"frame index {index} out of range")
+            t = self._decoder_time(cap, index, None)
+            return Frame(index, index / self.fps if t is None else t, image)
+        finally:
+            cap.release()
+
+    def info(self) -> dict:
+        d = super().info()
+        d.update(
+            fps_source=self.fps_source,
+            declared_frames=self.declared_count,
+            decoded_frames=self._n_decoded,
+        )
+        return d
+
+
+class FolderFrames(FrameSource):
+    """Frames stored as PNG/JPEG files in one folder, in natural name order.
+
+    Natural order sorts digit runs by value (``f2.png`` before ``f10.png``) and agrees with
+    plain name order for zero-padded names. Hidden files (names starting with ``.``) and other
+    file types are ignored.
+
+    Parameters
+    ----------
+    path : Path
+        The folder.
+    fps : float
+        Frame rate (frames/s); frame ``i`` is at ``i / fps`` s. Required.
+
+    Raises
+    ------
+    InputError
+        No frames in the folder, no ``fps``, or an image that cannot be read or whose size
+        differs from the first frame's (names the file). Sizes are checked from the image headers
+        when the source is opened (with Pillow when it is installed) and again while decoding.
+    """
+
+    kind = "folder"
+
+    def __init__(self, path: Path, *, fps: float | None) -> None:
+        path = Path(path)
+        files = sorted(
+            (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".") and p.is_file()),
+            key=lambda p: _natural_key(p.name),
+        )
+        if not files:
+            raise InputError(path, f"folder has no frames ({', '.join(IMAGE_SUFFIXES)} files)")
+        rate = _check_fps(path, fps)
+        if rate is None:
+            raise InputError(path, "a folder of frames needs a frame rate (--fps)")
+        first = self._read(files[0])
+        super().__init__(path, rate, (int(first.shape[0]), int(first.shape[1])))
+        self.files = files
+        self._check_sizes()
+
+    @staticmethod
+    def _read(file: Path) -> np.ndarray:
+        image = cv2.imread(str(file), cv2.IMREAD_ANYCOLOR)
+        if image is None:
+            raise InputError(file, "cannot be decoded as an image")
+        return image
+
+    def _size_problem(self, file: Path, height: int, width: int) -> InputError | None:
+        if (height, width) == self.shape:
+            return None
+        return InputError(
+            file,
+            f"frame size {width}x{height} px differs from {self.shape[1]}x{self.shape[0]} px "
+            f"of the first frame {self.files[0].name} (frames are not resized)",
+        )
+
+    def _check_sizes(self) -> None:
+        try:
+            from PIL import Image
+        except ImportError:  # sizes are still checked while decoding
+            return
+        for file in self.files[1:]:
+            try:
+                with Image.open(file) as im:
+                    width, height = im.size
+            except Exception:
+                raise InputError(file, "not a readable image") from None
+            problem = self._size_problem(file, height, width)
+            if problem is not None:
+                raise problem
+
+    def _frame(self, index: int) -> Frame:
+        file = self.files[index]
+        image = self._read(file)
+        problem = self._size_problem(file, image.shape[0], image.shape[1])
+        if problem is not None:
+            raise problem
+        return Frame(index, index / self.fps, image)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in range(len(self.files)):
+            yield self._frame(index)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __getitem__(self, index: int) -> Frame:
+        if not isinstance(index, (int, np.integer)):
+            raise TypeError(f"frame index must be an int, not {type(index).__name__}")
+        index = int(index)
+        n = len(self.files)
+        if not -n <= index < n:
+            raise IndexError(f"frame index {index} out of range for {n} frames")
+        return self._frame(index % n)
+
+    def info(self) -> dict:
+        d = super().info()
+        d.update(n_files=len(self.files), first_file=self.files[0].name, last_file=self.files[-1].name)
+        return d
+
+
+def open_frames(path: str | os.PathLike, *, fps: float | None = None) -> FrameSource:
+    """Open a video file or a folder of frames for lazy reading.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A video file OpenCV can read, or a folder of PNG/JPEG frames.
+    fps : float, optional
+        Frame rate (frames/s). Required for a folder; for a video it overrides the file's clock
+        (see the module notes).
+
+    Returns
+    -------
+    FrameSource
+        :class:`VideoFrames` or :class:`FolderFrames`.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable path, a single image, or any of the problems listed for the two
+        source types.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(p, "no such file or folder")
+    if not os.access(p, os.R_OK):
+        raise InputError(p, "permission denied")
+    if p.is_dir():
+        return FolderFrames(p, fps=fps)
+    if p.suffix.lower() in IMAGE_SUFFIXES:
+        raise InputError(p, "is a single image, not a video; pass the folder of frames (with --fps)")
+    if p.stat().st_size == 0:
+        raise InputError(p, "empty file")
+    return VideoFrames(p, fps=fps)
