@@ -114,19 +114,16 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     for speed in cfg.speeds_mm_s:
         for k in range(cfg.trials):
             trial = _trial_name(speed, k)
-            duration = (cfg.depth_mm + 1.0) / speed
-            n_frames = int(duration * cfg.fps) + 1
-            fps = cfg.fps if cfg.max_frames is None or n_frames <= cfg.max_frames else (cfg.max_frames - 1) / duration
             spec = VideoSpec(
-                pose=pose, width=cfg.width, height=cfg.height, fps=fps, speed_mm_s=speed,
+                pose=pose, width=cfg.width, height=cfg.height, fps=cfg.fps, speed_mm_s=speed,
                 start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, policy=random_policy(rng),
-                appearance=look, nuisance=random_nuisance(rng, cfg.nuisance),
+                appearance=look, nuisance=random_nuisance(rng, cfg.nuisance), max_frames=cfg.max_frames,
             )
             name = Path("videos") / (trial if cfg.png else f"{trial}.mp4")
             truth = render_video(out / name, spec, seed=int(rng.integers(2**31)))
             truth.insert(0, "trial", trial)
             atomic_write_csv(truth, out / "truth" / f"{trial}.csv")
-            rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), fps=fps, video_t0_s=0.0))
+            rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), fps=spec.effective_fps(), video_t0_s=0.0))
     manifest = pd.DataFrame(rows)
     atomic_write_csv(manifest, out / "manifest.csv")
     atomic_write_json(

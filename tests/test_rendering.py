@@ -153,3 +153,13 @@ def test_render_video_writes_frames_and_truth(tmp_path, target):
     else:
         assert len(list(out.glob("*.png"))) == 21
     assert not list(tmp_path.glob(".*partial*"))  # nothing half-written left behind
+
+
+def test_capped_video_keeps_frame_times_on_the_file_clock(tmp_path):
+    pose = CameraPose(320.0, 240.0, 0.2, 22.0, False)
+    spec = VideoSpec(pose=pose, fps=30.0, speed_mm_s=1.0, start_depth_mm=0.0, end_depth_mm=9.0, max_frames=10)
+    truth = render_video(tmp_path / "v.mp4", spec)
+    assert len(truth) == 10
+    cap = cv2.VideoCapture(str(tmp_path / "v.mp4"))
+    assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(1.0, rel=1e-3)
+    np.testing.assert_allclose(truth.time_s, np.arange(10) / 1.0)

@@ -62,6 +62,22 @@ IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg")
 _MAX_FPS = 1.0e5  # frames/s; anything above is a broken header, not a camera
 
 
+def _video_backend() -> int:
+    """FFmpeg when this OpenCV build has it, else whatever OpenCV picks.
+
+    Only FFmpeg is asked (not the other backends in turn): OpenCV's own AVI/MJPEG reader prints
+    parser messages to stderr on damaged files, which would spoil one-line error reports.
+    """
+    try:
+        from cv2 import videoio_registry
+
+        if videoio_registry.hasBackend(cv2.CAP_FFMPEG):
+            return cv2.CAP_FFMPEG
+    except Exception:  # pragma: no cover - very old or unusual builds
+        pass
+    return cv2.CAP_ANY
+
+
 @dataclass(frozen=True)
 class Frame:
     """One decoded frame.
@@ -218,12 +234,11 @@ class VideoFrames(FrameSource):
     def __init__(self, path: Path, *, fps: float | None = None) -> None:
         path = Path(path)
         user_fps = _check_fps(path, fps)
-        cap = cv2.VideoCapture(str(path))
+        self._backend = _video_backend()
+        cap = cv2.VideoCapture(str(path), self._backend)
         try:
             if not cap.isOpened():
-                raise InputError(
-                    path, "not a video OpenCV can read (unknown format, empty, or cut before its index)"
-                )
+                raise InputError(path, "not a video OpenCV can read (unknown format, or damaged)")
             declared_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
             declared_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
             try:
@@ -249,7 +264,7 @@ class VideoFrames(FrameSource):
     # -- decoding
 
     def _open(self) -> cv2.VideoCapture:
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(str(self.path), self._backend)
         if not cap.isOpened():
             raise InputError(self.path, "could not be reopened as a video (was it changed or removed?)")
         return cap

@@ -351,7 +351,8 @@ class VideoSpec:
     appearance : Appearance
     nuisance : Nuisance
     max_frames : int or None
-        Cap on the number of frames (subsamples time evenly when the insertion is longer).
+        Cap on the number of frames: a longer recording is written at a lower frame rate
+        (:meth:`effective_fps`), so that ``frame / fps`` stays each frame's time.
     """
 
     pose: CameraPose
@@ -367,13 +368,22 @@ class VideoSpec:
     nuisance: Nuisance = Nuisance()
     max_frames: int | None = None
 
-    def frame_times(self) -> np.ndarray:
-        """Times (s) of the frames."""
-        duration = (self.end_depth_mm - self.start_depth_mm) / self.speed_mm_s + self.dwell_s
-        n = int(np.floor(duration * self.fps)) + 1
+    def duration_s(self) -> float:
+        """Length (s) of the recording: the insertion plus the dwell."""
+        return (self.end_depth_mm - self.start_depth_mm) / self.speed_mm_s + self.dwell_s
+
+    def effective_fps(self) -> float:
+        """Frame rate (1/s) of the written video: ``fps``, lowered when ``max_frames`` caps it."""
+        n = int(np.floor(self.duration_s() * self.fps)) + 1
         if self.max_frames is not None and n > self.max_frames:
-            return np.linspace(0.0, duration, self.max_frames)
-        return np.arange(n) / self.fps
+            return (self.max_frames - 1) / self.duration_s()
+        return self.fps
+
+    def frame_times(self) -> np.ndarray:
+        """Times (s) of the frames, ``index / effective_fps()``."""
+        fps = self.effective_fps()
+        n = int(np.floor(self.duration_s() * fps + 1e-9)) + 1
+        return np.arange(n) / fps
 
     def depth_at(self, time_s: np.ndarray) -> np.ndarray:
         """Insertion depth (mm) at ``time_s`` (s)."""
@@ -695,7 +705,7 @@ def render_video(
     writer = None
     if is_video:
         fourcc = cv2.VideoWriter_fourcc(*("mp4v" if out_path.suffix.lower() != ".avi" else "MJPG"))
-        writer = cv2.VideoWriter(str(tmp), fourcc, float(spec.fps), (spec.width, spec.height))
+        writer = cv2.VideoWriter(str(tmp), fourcc, float(spec.effective_fps()), (spec.width, spec.height))
         if not writer.isOpened():
             raise OSError(f"{out_path}: OpenCV cannot write this video format")
     else:

@@ -1,0 +1,890 @@
+"""Video → angles: one video (:func:`extract_video`, :func:`process_video`) and many
+(:func:`extract_batch`), plus the experiment manifest (:func:`read_manifest`).
+
+The layers follow trackpy's ``locate``/``batch``:
+
+- :func:`measure_frames` streams a :class:`~vision.frames.FrameSource` through registration
+  and ``vision.angles.measure_frame``, one :class:`MeasuredFrame` at a time;
+- :func:`extract_video` collects that stream into the angles table (SPEC §6);
+- :func:`process_video` is the unit of work: it takes a *path*, opens it itself (so it runs in
+  a worker process or on a Dask worker), writes ``<trial>.angles.csv``,
+  ``<trial>.registration.json`` and ``<trial>.provenance.json`` atomically, and skips videos
+  whose outputs exist (resume) unless told to overwrite;
+- :func:`extract_batch` maps :func:`process_video` over videos with a pluggable executor and
+  returns one summary row per video; a failing video never stops the others.
+
+Registration happens once per video on its first ``register_frames`` frames; when
+``vision.angles`` offers ``prepare_measurement``, its per-registration plan is built once and
+passed to ``measure_frame`` in place of the registration. Every
+``recheck_every`` frames ``vision.registration.check`` measures the registration's residual on
+the current frame; above ``residual_px * recheck_factor + recheck_margin_px`` the camera is taken
+to have moved and the video is registered again on the next ``register_frames`` frames (the
+frames since the last check were measured with the old registration). Each registration is
+recorded; the angles table's ``reg_epoch`` column says which one a frame used.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import csv
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
+
+import numpy as np
+import pandas as pd
+
+from pipeline.io import atomic_write_csv, atomic_write_json, provenance
+from vision.errors import InputError, is_input_error
+from vision.frames import Frame, FrameSource, open_frames, to_gray
+from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
+
+if TYPE_CHECKING:  # pragma: no cover
+    from vision.registration import Registration
+
+__all__ = [
+    "ANGLE_COLUMNS",
+    "SUMMARY_COLUMNS",
+    "ExtractConfig",
+    "ExtractLog",
+    "MeasuredFrame",
+    "VideoItem",
+    "measure_frames",
+    "extract_video",
+    "process_video",
+    "extract_batch",
+    "output_paths",
+    "trial_name",
+    "read_manifest",
+    "MANIFEST_REQUIRED",
+]
+
+#: The SPEC §6 angles-table columns, in order; extra columns follow them.
+ANGLE_COLUMNS: tuple[str, ...] = ("trial", "frame", "time_s", "theta_tip", "theta_bot", "theta_con", "ok", "reason")
+
+#: Columns of the per-video summary returned by :func:`extract_batch`.
+SUMMARY_COLUMNS: tuple[str, ...] = (
+    "trial", "path", "status", "n_frames", "n_ok", "error", "error_kind", "warnings", "n_registrations", "seconds",
+)
+
+
+def _default_measure_config() -> Any:
+    from vision.angles import MeasureConfig
+
+    return MeasureConfig()
+
+
+def _default_registration_config() -> Any:
+    import vision.registration as reg_mod
+
+    factory = getattr(reg_mod, "RegistrationConfig", None)
+    return factory() if factory is not None else None
+
+
+@dataclass(frozen=True)
+class ExtractConfig:
+    """What :func:`extract_video` needs besides the video.
+
+    Parameters
+    ----------
+    phantom : Phantom
+        Phantom geometry (SPEC §2).
+    array : ElectrodeArray
+        Electrode array (SPEC §3).
+    recheck_every : int
+        Check the registration every this many frames (0: never).
+    register_frames : int
+        How many frames (from the start, or from a failed check) registration may use.
+    measure : vision.angles.MeasureConfig
+        Measurement settings, passed to ``measure_frame`` (and ``prepare_measurement``).
+    registration : vision.registration.RegistrationConfig or None
+        Registration settings, passed to ``register``; None calls it with its own defaults.
+    recheck_factor : float
+        A check fails when the residual (px) exceeds ``recheck_factor * residual_px +
+        recheck_margin_px`` of the current registration.
+    recheck_margin_px : float
+        See ``recheck_factor`` (px).
+    """
+
+    phantom: Phantom = DEFAULT_PHANTOM
+    array: ElectrodeArray = DEFAULT_ARRAY
+    recheck_every: int = 150
+    register_frames: int = 5
+    measure: Any = field(default_factory=_default_measure_config)
+    registration: Any = field(default_factory=_default_registration_config)
+    recheck_factor: float = 3.0
+    recheck_margin_px: float = 2.0
+
+    def __post_init__(self) -> None:
+        if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
+            raise ValueError(f"recheck_every must be an integer >= 0, not {self.recheck_every!r}")
+        if int(self.register_frames) != self.register_frames or self.register_frames < 1:
+            raise ValueError(f"register_frames must be an integer >= 1, not {self.register_frames!r}")
+        if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
+            raise ValueError("recheck_factor must be >= 1 and recheck_margin_px >= 0")
+
+    def recheck_threshold_px(self, registration: "Registration") -> float:
+        """Residual (px) above which a check re-registers the video."""
+        return float(registration.residual_px) * self.recheck_factor + self.recheck_margin_px
+
+
+@dataclass
+class ExtractLog:
+    """What happened while a video was measured (filled in by :func:`measure_frames`).
+
+    Attributes
+    ----------
+    registrations : list of dict
+        One entry per registration in force: ``frame`` (first frame it was used for), ``epoch``,
+        ``trigger`` ("start" or "check"), ``check_residual_px`` and ``threshold_px`` (for
+        "check"), ``n_frames_used`` and the registration's ``to_dict()`` keys.
+    checks : list of tuple
+        ``(frame, residual_px)`` of every registration check.
+    warnings : list of str
+        One line each (failed re-registrations, measurement exceptions).
+    timing_s : dict of str to float
+        Wall time (s) spent per stage: ``decode``, ``gray``, ``register``, ``prepare``,
+        ``check``, ``measure``, plus ``measure.<stage>`` when measurements expose ``timings``.
+    n_frames, n_ok, n_exceptions : int
+        Frames measured, frames with ``ok``, frames whose measurement raised.
+    first_registration : Registration or None
+        The registration frame 0 was measured with.
+    """
+
+    registrations: list[dict] = field(default_factory=list)
+    checks: list[tuple[int, float]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    timing_s: dict[str, float] = field(default_factory=dict)
+    n_frames: int = 0
+    n_ok: int = 0
+    n_exceptions: int = 0
+    first_registration: Any = None
+
+    def add_time(self, stage: str, seconds: float) -> None:
+        self.timing_s[stage] = self.timing_s.get(stage, 0.0) + float(seconds)
+
+
+@dataclass(frozen=True)
+class MeasuredFrame:
+    """One frame after measurement.
+
+    Parameters
+    ----------
+    frame : Frame
+        The decoded frame.
+    gray : ndarray
+        Its ``uint8`` greyscale version.
+    registration : Registration
+        The registration it was measured with.
+    epoch : int
+        Which registration (0 the first, 1 after the first re-registration, ...).
+    measurement : vision.angles.FrameMeasurement or None
+        The result (None when ``measure_frame`` raised).
+    row : dict
+        The angles-table row.
+    """
+
+    frame: Frame
+    gray: np.ndarray
+    registration: Any
+    epoch: int
+    measurement: Any
+    row: dict
+
+
+# --------------------------------------------------------------------------- one video
+
+
+def _one_line(exc: BaseException) -> str:
+    """A one-line description of an exception (``InputError`` keeps its own text)."""
+    text = " ".join(str(exc).split())
+    if is_input_error(exc):
+        return text or type(exc).__name__
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _frame_row(trial: str, frame: Frame, result: dict, epoch: int) -> dict:
+    """The angles-table row of one frame from ``FrameMeasurement.to_row()`` output."""
+    ok = bool(result.get("ok", False))
+    row: dict[str, Any] = {"trial": trial, "frame": int(frame.index), "time_s": float(frame.time_s)}
+    for key in ("theta_tip", "theta_bot", "theta_con"):
+        value = result.get(key)
+        row[key] = float(value) if ok and value is not None else math.nan
+    row["ok"] = ok
+    reason = result.get("reason")
+    row["reason"] = "" if reason is None else " ".join(str(reason).split())
+    if not ok and not row["reason"]:
+        row["reason"] = "not measured"
+    for key, value in result.items():
+        if key in row or key == "reg_epoch":
+            continue
+        if value is None or np.isscalar(value):
+            row[key] = value.item() if isinstance(value, np.generic) else value
+    row["reg_epoch"] = int(epoch)
+    return row
+
+
+def _check_due(cfg: ExtractConfig, index: int, last_registered_at: int) -> bool:
+    """Whether frame ``index`` gets a registration check."""
+    return bool(cfg.recheck_every) and index % cfg.recheck_every == 0 and index > last_registered_at
+
+
+def _is_registration_failure(exc: BaseException, reg_module: Any) -> bool:
+    failure = getattr(reg_module, "RegistrationError", None)
+    return is_input_error(exc) or (isinstance(failure, type) and isinstance(exc, failure))
+
+
+def measure_frames(
+    source: FrameSource,
+    cfg: ExtractConfig,
+    *,
+    trial: str,
+    log: ExtractLog | None = None,
+    progress: bool = False,
+) -> Iterator[MeasuredFrame]:
+    """Register and measure the frames of ``source``, streaming.
+
+    Parameters
+    ----------
+    source : FrameSource
+        The frames (see :func:`vision.frames.open_frames`).
+    cfg : ExtractConfig
+        Phantom, array, registration and measurement settings.
+    trial : str
+        Trial name written in each row.
+    log : ExtractLog, optional
+        Filled in with registrations, checks, warnings, timings and counts.
+    progress : bool
+        Show a per-frame progress bar on stderr.
+
+    Yields
+    ------
+    MeasuredFrame
+        In frame order. At most ``cfg.register_frames`` frames are held back while a
+        registration is pending.
+
+    Raises
+    ------
+    InputError
+        The first registration failed (no phantom found), or the frames are bad.
+    """
+    import vision.angles as angles_mod  # looked up at call time: replaceable in tests
+    import vision.registration as reg_mod
+
+    log = log if log is not None else ExtractLog()
+    phantom = cfg.phantom
+    registration: Any = None
+    epoch = -1
+    pending: list[tuple[Frame, np.ndarray]] = []
+    trigger: dict[str, Any] = {"trigger": "start"}
+    last_registered_at = 0
+
+    plan: Any = None  # what measure_frame gets as its registration (see register_pending)
+
+    def measure(frame: Frame, gray: np.ndarray) -> MeasuredFrame:
+        t0 = time.perf_counter()
+        try:
+            m = angles_mod.measure_frame(gray, plan, phantom, cfg.array, cfg.measure)
+            result = m.to_row()
+        except Exception as exc:  # a failed frame keeps its row
+            m = None
+            result = {"ok": False, "reason": f"measurement raised {_one_line(exc)}"}
+            if log.n_exceptions == 0:
+                log.warnings.append(f"frame {frame.index}: measurement raised {_one_line(exc)}")
+            log.n_exceptions += 1
+        log.add_time("measure", time.perf_counter() - t0)
+        for stage, seconds in (getattr(m, "timings", None) or {}).items():
+            log.add_time(f"measure.{stage}", seconds)
+        row = _frame_row(trial, frame, result, epoch)
+        log.n_frames += 1
+        log.n_ok += bool(row["ok"])
+        return MeasuredFrame(frame, gray, registration, epoch, m, row)
+
+    def register_pending() -> None:
+        nonlocal registration, plan, epoch, last_registered_at
+        t0 = time.perf_counter()
+        try:
+            frames_used = [g for _, g in pending]
+            if cfg.registration is None:
+                new = reg_mod.register(frames_used, phantom)
+            else:
+                new = reg_mod.register(frames_used, phantom, cfg.registration)
+        except Exception as exc:
+            if registration is None:
+                if _is_registration_failure(exc, reg_mod):
+                    problem = getattr(exc, "problem", None) or " ".join(str(exc).split())
+                    raise InputError(source.path, f"registration failed: {problem}") from exc
+                raise
+            log.warnings.append(
+                f"re-registration at frame {pending[0][0].index} failed ({_one_line(exc)}); kept the previous one"
+            )
+            new = registration
+        else:
+            epoch += 1
+            if log.first_registration is None:
+                log.first_registration = new
+            log.registrations.append(
+                {"frame": pending[0][0].index, "epoch": epoch, **trigger, "n_frames_used": len(pending), **new.to_dict()}
+            )
+        finally:
+            log.add_time("register", time.perf_counter() - t0)
+        if new is not registration:
+            plan = new
+            prepare = getattr(angles_mod, "prepare_measurement", None)
+            if prepare is not None:  # per-registration precomputation, passed in its place
+                t0 = time.perf_counter()
+                plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
+                log.add_time("prepare", time.perf_counter() - t0)
+        registration = new
+        last_registered_at = pending[0][0].index
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(source), unit="frame", desc=trial, leave=False, file=sys.stderr, dynamic_ncols=True)
+    frames = iter(source)
+    try:
+        while True:
+            t0 = time.perf_counter()
+            frame = next(frames, None)
+            t1 = time.perf_counter()
+            log.add_time("decode", t1 - t0)
+            if frame is None:
+                break
+            gray = to_gray(frame.image)
+            log.add_time("gray", time.perf_counter() - t1)
+            if bar is not None:
+                bar.update(1)
+            if registration is not None and not pending:
+                if not _check_due(cfg, frame.index, last_registered_at):
+                    yield measure(frame, gray)
+                    continue
+                t2 = time.perf_counter()
+                residual = float(reg_mod.check(gray, registration, phantom))
+                log.add_time("check", time.perf_counter() - t2)
+                log.checks.append((frame.index, residual))
+                threshold = cfg.recheck_threshold_px(registration)
+                if residual <= threshold:
+                    yield measure(frame, gray)
+                    continue
+                # NaN or too large: the camera moved; register again from this frame on
+                trigger = {"trigger": "check", "check_residual_px": residual, "threshold_px": threshold}
+            pending.append((frame, gray))
+            if len(pending) >= cfg.register_frames:
+                register_pending()
+                for f, g in pending:
+                    yield measure(f, g)
+                pending = []
+        if pending:  # video (or its rest) shorter than register_frames
+            register_pending()
+            for f, g in pending:
+                yield measure(f, g)
+            pending = []
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:  # release the decoder now, also when the consumer stops early
+            close()
+        if bar is not None:
+            bar.close()
+    if log.n_exceptions > 1:
+        log.warnings.append(f"measurement raised on {log.n_exceptions} frames in all")
+
+
+def trial_name(path: str | os.PathLike, trial: str | None = None) -> str:
+    """The trial name of a video: ``trial`` if given, else the file stem (folder name).
+
+    Raises
+    ------
+    InputError
+        The name is empty or would escape the output folder (contains a path separator).
+    """
+    p = Path(path)
+    name = trial if trial is not None else (p.name if p.is_dir() else p.stem)
+    name = str(name).strip()
+    if not name or name in (".", "..") or any(c in name for c in "/\\\0"):
+        raise InputError(p, f"unusable trial name {name!r} (empty or contains a path separator)")
+    return name
+
+
+def output_paths(out_dir: str | os.PathLike, trial: str) -> dict[str, Path]:
+    """Files :func:`process_video` writes for ``trial`` in ``out_dir``:
+    ``angles`` (CSV), ``registration`` (JSON), ``provenance`` (JSON)."""
+    out = Path(out_dir)
+    return {
+        "angles": out / f"{trial}.angles.csv",
+        "registration": out / f"{trial}.registration.json",
+        "provenance": out / f"{trial}.provenance.json",
+    }
+
+
+def extract_video(
+    path: str | os.PathLike,
+    cfg: ExtractConfig,
+    *,
+    fps: float | None = None,
+    trial: str | None = None,
+    progress: bool = False,
+) -> tuple[pd.DataFrame, "Registration"]:
+    """Angles of every frame of one video.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Video file or folder of frames.
+    cfg : ExtractConfig
+        Settings.
+    fps : float, optional
+        Frame rate (frames/s); needed for a folder, overrides the file's clock for a video.
+    trial : str, optional
+        Trial name for the ``trial`` column (default: the file stem).
+    progress : bool
+        Per-frame progress bar on stderr.
+
+    Returns
+    -------
+    table : DataFrame
+        One row per decoded frame: :data:`ANGLE_COLUMNS`, then the measurement's extra scalar
+        columns, then ``reg_epoch``. Failed frames have ``ok`` False, NaN angles and a
+        ``reason``. ``table.attrs`` holds ``registrations``, ``checks``, ``warnings``
+        (decoder and measurement), ``timing_s`` and ``source`` (see :class:`ExtractLog`).
+    registration : Registration
+        The first registration (the one frame 0 was measured with).
+
+    Raises
+    ------
+    InputError
+        Unreadable input, or no phantom found in the first frames.
+    """
+    name = trial_name(path, trial)
+    source = open_frames(path, fps=fps)
+    log = ExtractLog()
+    rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress)]
+    table = pd.DataFrame(rows)
+    extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
+    table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
+    table["ok"] = table["ok"].astype(bool)
+    table.attrs.update(
+        registrations=log.registrations,
+        checks=log.checks,
+        warnings=[*source.warnings, *log.warnings],
+        timing_s=log.timing_s,
+        source=source.info(),
+    )
+    return table, log.first_registration
+
+
+def _count_ok(csv_path: Path) -> tuple[int, int] | None:
+    """(rows, ok rows) of an existing angles table, None when it cannot be read."""
+    try:
+        ok = pd.read_csv(csv_path, usecols=["ok"], true_values=["true", "True", "TRUE"], false_values=["false", "False", "FALSE"])["ok"]
+    except Exception:
+        return None
+    return len(ok), int((ok == True).sum())  # noqa: E712 - ok may be object dtype
+
+
+def _summary(trial: str, path: Path, status: str, **values: Any) -> dict:
+    row = {c: None for c in SUMMARY_COLUMNS}
+    row.update(trial=trial, path=str(path), status=status, error="", error_kind="", warnings="")
+    row.update(values)
+    return row
+
+
+def process_video(
+    path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    cfg: ExtractConfig,
+    *,
+    fps: float | None = None,
+    trial: str | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> dict:
+    """Extract one video's angles and write them, with registration and provenance, to files.
+
+    Writes ``<trial>.angles.csv``, ``<trial>.registration.json`` (SPEC §6 keys of the first
+    registration, plus ``registrations``: every registration used, with the frame it started
+    at) and ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
+    ``out_dir``, each atomically. If interrupted while writing, the files written so far in this
+    call are removed again.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Video file or folder of frames (opened here, so this runs in any worker process).
+    out_dir : str or PathLike
+        Output folder (created if needed).
+    cfg : ExtractConfig
+        Settings.
+    fps : float, optional
+        Frame rate (frames/s); see :func:`extract_video`.
+    trial : str, optional
+        Trial name (default: file stem); names the output files.
+    overwrite : bool
+        Redo a video whose three outputs exist (default: skip it, so reruns resume).
+    progress : bool
+        Per-frame progress bar on stderr.
+
+    Returns
+    -------
+    dict
+        A summary row (:data:`SUMMARY_COLUMNS`) with ``status`` "ok" or "skipped".
+
+    Raises
+    ------
+    InputError
+        Bad input or failed registration. Other exceptions are bugs.
+    """
+    name = trial_name(path, trial)
+    path = Path(path)
+    files = output_paths(out_dir, name)
+    if not overwrite and all(f.exists() for f in files.values()):
+        counts = _count_ok(files["angles"])
+        if counts is not None:
+            return _summary(name, path, "skipped", n_frames=counts[0], n_ok=counts[1], seconds=0.0)
+    t0 = time.perf_counter()
+    table, registration = extract_video(path, cfg, fps=fps, trial=name, progress=progress)
+    registrations = table.attrs["registrations"]
+    warnings = list(table.attrs["warnings"])
+    n_ok = int(table["ok"].sum())
+    seconds = time.perf_counter() - t0
+    reg_record = {**registration.to_dict(), "registrations": registrations}
+    prov = provenance(
+        path,
+        {"extract": cfg, "fps": fps, "trial": name},
+        command="extract",
+        source=table.attrs["source"],
+        outputs={k: f.name for k, f in files.items()},
+        n_frames=len(table),
+        n_ok=n_ok,
+        checks=[{"frame": f, "residual_px": r} for f, r in table.attrs["checks"]],
+        warnings=warnings,
+        timing_s={**table.attrs["timing_s"], "total": seconds},
+    )
+    written: list[Path] = []
+    try:
+        atomic_write_csv(files["angles"], table)
+        written.append(files["angles"])
+        atomic_write_json(files["registration"], reg_record)
+        written.append(files["registration"])
+        atomic_write_json(files["provenance"], prov)
+    except BaseException:
+        for f in written:
+            f.unlink(missing_ok=True)
+        raise
+    return _summary(
+        name, path, "ok",
+        n_frames=len(table), n_ok=n_ok, warnings="; ".join(warnings),
+        n_registrations=len(registrations), seconds=round(seconds, 3),
+    )
+
+
+# --------------------------------------------------------------------------- many videos
+
+
+@dataclass(frozen=True)
+class VideoItem:
+    """One video of a batch.
+
+    Parameters
+    ----------
+    path : str
+        Video file or folder of frames.
+    trial : str, optional
+        Trial name (default: file stem).
+    fps : float, optional
+        Frame rate (frames/s) for this video (default: the batch's ``fps``).
+    """
+
+    path: str
+    trial: str | None = None
+    fps: float | None = None
+
+
+def _blank(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value)) or (isinstance(value, str) and not value.strip())
+
+
+def _as_items(items: Any) -> list[VideoItem]:
+    """Normalise paths, dicts, :class:`VideoItem` s or a manifest DataFrame to items."""
+    if isinstance(items, (str, os.PathLike)):
+        items = [items]
+    if isinstance(items, pd.DataFrame):
+        col = "video" if "video" in items.columns else "path"
+        if col not in items.columns:
+            raise ValueError("a DataFrame of videos needs a 'video' or 'path' column")
+        records = [r for r in items.to_dict("records") if not _blank(r.get(col))]
+        items = [{"path": r[col], "trial": r.get("trial"), "fps": r.get("fps")} for r in records]
+    out = []
+    for item in items:
+        if isinstance(item, VideoItem):
+            out.append(item)
+        elif isinstance(item, dict):
+            p = item.get("path", item.get("video"))
+            trial = None if _blank(item.get("trial")) else str(item["trial"])
+            fps = None if _blank(item.get("fps")) else float(item["fps"])
+            out.append(VideoItem(os.fspath(p), trial, fps))
+        else:
+            out.append(VideoItem(os.fspath(item)))
+    return out
+
+
+# Set in worker processes of a pool that extract_batch owns (by _init_worker): once the main
+# process is interrupted, queued videos are skipped instead of started.
+_CANCEL_EVENT: Any = None
+
+
+def _run_one(item: VideoItem, trial: str, out_dir: str, cfg: ExtractConfig, fps: float | None,
+             overwrite: bool, single_thread: bool, progress: bool) -> dict:
+    """Worker body: :func:`process_video` with every failure turned into a summary row."""
+    if _CANCEL_EVENT is not None and _CANCEL_EVENT.is_set():
+        return _summary(trial, Path(item.path), "failed", error="cancelled (interrupted)", error_kind="cancelled")
+    if single_thread:
+        import cv2
+
+        cv2.setNumThreads(1)
+    t0 = time.perf_counter()
+    try:
+        return process_video(item.path, out_dir, cfg, fps=item.fps if item.fps is not None else fps,
+                             trial=trial, overwrite=overwrite, progress=progress)
+    except Exception as exc:
+        return _summary(trial, Path(item.path), "failed", error=_one_line(exc),
+                        error_kind="input" if is_input_error(exc) else "error",
+                        seconds=round(time.perf_counter() - t0, 3))
+
+
+def _init_worker(cancel_event: Any) -> None:
+    global _CANCEL_EVENT
+    import cv2
+
+    cv2.setNumThreads(1)
+    _CANCEL_EVENT = cancel_event
+
+
+def _completed(futures: list) -> Iterator:
+    """Futures in completion order when they are ``concurrent.futures`` ones, else in order
+    (a Dask future's ``result()`` simply blocks)."""
+    if futures and all(isinstance(f, cf.Future) for f in futures):
+        yield from cf.as_completed(futures)
+    else:
+        yield from futures
+
+
+def extract_batch(
+    items: Iterable[str | os.PathLike | VideoItem | dict] | pd.DataFrame,
+    out_dir: str | os.PathLike,
+    cfg: ExtractConfig,
+    *,
+    workers: int = 1,
+    executor: Any = None,
+    overwrite: bool = False,
+    progress: bool = True,
+    fps: float | None = None,
+) -> pd.DataFrame:
+    """Extract the angles of many videos; a failing video is recorded and the rest go on.
+
+    Parameters
+    ----------
+    items : iterable or DataFrame
+        Video paths, :class:`VideoItem` s, dicts with ``path`` (or ``video``), ``trial``,
+        ``fps``, or a manifest DataFrame (:func:`read_manifest`; rows without a video are
+        ignored).
+    out_dir : str or PathLike
+        Output folder.
+    cfg : ExtractConfig
+        Settings (pickled to workers).
+    workers : int
+        Processes to use when no ``executor`` is given; 1 runs in this process.
+    executor : object, optional
+        Anything with ``submit(fn, *args) -> future`` whose futures have ``result()``:
+        ``concurrent.futures`` executors, a ``dask.distributed.Client``, ... It is not shut
+        down here. Its workers get ``cv2.setNumThreads(1)``.
+    overwrite : bool
+        Redo videos whose outputs exist.
+    progress : bool
+        Progress bar (videos; frames too when running serially) on stderr.
+    fps : float, optional
+        Frame rate (frames/s) for items that do not give their own.
+
+    Returns
+    -------
+    DataFrame
+        One row per video in input order, columns :data:`SUMMARY_COLUMNS`: ``status`` is
+        "ok", "skipped" or "failed"; ``error`` a one-line reason; ``error_kind`` "input" (bad
+        input, failed registration) or "error" (a bug or a crashed worker).
+
+    Notes
+    -----
+    On KeyboardInterrupt with a pool of its own, videos not yet started are skipped, the
+    running ones are interrupted (Ctrl-C reaches the whole process group) or, when only this
+    process got the signal, finish; then the interrupt is re-raised. Outputs are written
+    atomically, so no video is left with half-written files.
+
+    Raises
+    ------
+    InputError
+        Two videos would get the same trial name (their outputs would collide).
+    """
+    videos = _as_items(items)
+    trials: dict[str, str] = {}
+    names = []
+    for item in videos:
+        name = trial_name(item.path, item.trial)
+        if name in trials:
+            raise InputError(item.path, f"trial name {name!r} is also used by {trials[name]}; give distinct trial names")
+        trials[name] = item.path
+        names.append(name)
+    out = os.fspath(out_dir)
+    Path(out).mkdir(parents=True, exist_ok=True)
+    results: list[dict | None] = [None] * len(videos)
+    from tqdm import tqdm
+
+    with tqdm(total=len(videos), unit="video", desc="extract", file=sys.stderr, disable=not progress,
+              dynamic_ncols=True) as bar:
+        if executor is None and workers <= 1:
+            for i, (item, name) in enumerate(zip(videos, names)):
+                results[i] = _run_one(item, name, out, cfg, fps, overwrite, False, progress)
+                bar.update(1)
+        else:
+            own = executor is None
+            cancel = None
+            if own:
+                import multiprocessing
+
+                cancel = multiprocessing.get_context().Event()
+                pool = cf.ProcessPoolExecutor(max_workers=int(workers), initializer=_init_worker, initargs=(cancel,))
+            else:
+                pool = executor
+            try:
+                futures = [pool.submit(_run_one, item, name, out, cfg, fps, overwrite, True, False)
+                           for item, name in zip(videos, names)]
+                index = {id(f): i for i, f in enumerate(futures)}
+                for fut in _completed(futures):
+                    i = index[id(fut)]
+                    try:
+                        results[i] = fut.result()
+                    except Exception as exc:  # the worker itself died (crash, pickling, ...)
+                        results[i] = _summary(names[i], Path(videos[i].path), "failed",
+                                              error=_one_line(exc), error_kind="error")
+                    bar.update(1)
+            except KeyboardInterrupt:
+                if own:  # skip queued videos; running ones stop (Ctrl-C reaches them) or finish whole
+                    cancel.set()
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    own = False
+                raise
+            finally:
+                if own:
+                    pool.shutdown(wait=True)
+    return pd.DataFrame(results, columns=list(SUMMARY_COLUMNS))
+
+
+# --------------------------------------------------------------------------- manifest
+
+#: Columns every manifest must have (plus ``video`` and/or ``angles``).
+MANIFEST_REQUIRED: tuple[str, ...] = ("trial", "speed_mm_s", "force")
+_MANIFEST_PATHS = ("video", "angles", "force")
+
+
+def _number(where: str, column: str, text: str, *, positive: bool) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(where, f"{column} {text!r} is not a number") from None
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise InputError(where, f"{column} must be {'a positive' if positive else 'a finite'} number, not {text!r}")
+    return value
+
+
+def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.DataFrame:
+    """Read and validate an experiment manifest (SPEC §6).
+
+    The manifest is a CSV with a header row and one row a trial: ``trial``, ``speed_mm_s``,
+    ``force`` and ``video`` and/or ``angles`` (file paths relative to the manifest's folder),
+    optionally ``fps`` and ``video_t0_s``. Blank lines and lines starting with ``#`` are
+    skipped. Further columns are kept.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The manifest CSV.
+    check_files : bool
+        Check that every referenced file or folder exists.
+
+    Returns
+    -------
+    DataFrame
+        One row a trial, in file order: ``trial`` (str), ``speed_mm_s`` (float, mm/s),
+        ``video``, ``angles``, ``force`` (absolute path strings, None when blank), ``fps``
+        (float frames/s, NaN when blank), ``video_t0_s`` (float s, 0 when blank), ``line``
+        (line number in the manifest) and any extra columns (strings).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, missing columns, no rows, a bad value, a duplicate trial
+        name, or a missing referenced file; the message names the manifest and the line.
+    """
+    mpath = Path(path)
+    if not mpath.is_file():
+        raise InputError(mpath, "no such manifest file" if not mpath.exists() else "manifest is not a file")
+    base = mpath.resolve().parent
+    try:
+        with open(mpath, newline="", encoding="utf-8-sig") as fh:
+            lines = [(i, line) for i, line in enumerate(fh, start=1) if line.strip() and not line.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(mpath, f"cannot read manifest ({_one_line(exc)})") from None
+    if not lines:
+        raise InputError(mpath, "empty manifest (no header row)")
+    rows = list(csv.reader(line for _, line in lines))
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header):
+        raise InputError(f"{mpath}:{lines[0][0]}", "duplicate column names in the header")
+    missing = [c for c in MANIFEST_REQUIRED if c not in header]
+    if missing:
+        raise InputError(f"{mpath}:{lines[0][0]}", f"missing column(s): {', '.join(missing)}")
+    if "video" not in header and "angles" not in header:
+        raise InputError(f"{mpath}:{lines[0][0]}", "needs a 'video' or an 'angles' column")
+    if len(rows) == 1:
+        raise InputError(mpath, "manifest has no trials")
+    records, seen = [], {}
+    for (lineno, _), values in zip(lines[1:], rows[1:]):
+        where = f"{mpath}:{lineno}"
+        if len(values) != len(header):
+            raise InputError(where, f"{len(values)} fields, but the header has {len(header)}")
+        raw = {h: v.strip() for h, v in zip(header, values)}
+        trial = raw["trial"]
+        if not trial:
+            raise InputError(where, "empty trial name")
+        if trial in seen:
+            raise InputError(where, f"duplicate trial {trial!r} (first on line {seen[trial]})")
+        seen[trial] = lineno
+        rec: dict[str, Any] = dict(raw)
+        rec["speed_mm_s"] = _number(where, "speed_mm_s", raw["speed_mm_s"], positive=True)
+        rec["fps"] = _number(where, "fps", raw["fps"], positive=True) if raw.get("fps") else math.nan
+        rec["video_t0_s"] = _number(where, "video_t0_s", raw["video_t0_s"], positive=False) if raw.get("video_t0_s") else 0.0
+        for col in _MANIFEST_PATHS:
+            text = raw.get(col, "")
+            if not text:
+                rec[col] = None
+                continue
+            resolved = (base / text).resolve()
+            if check_files and not resolved.exists():
+                raise InputError(where, f"{col} file {text!r} not found (looked for {resolved})")
+            rec[col] = str(resolved)
+        if rec["force"] is None:
+            raise InputError(where, "no force log given")
+        if rec.get("video") is None and rec.get("angles") is None:
+            raise InputError(where, "needs a video or an angles table")
+        rec["line"] = lineno
+        records.append(rec)
+    first = ["trial", "speed_mm_s", "video", "angles", "force", "fps", "video_t0_s", "line"]
+    table = pd.DataFrame(records)
+    for col in first:
+        if col not in table.columns:
+            table[col] = None
+    return table[first + [c for c in table.columns if c not in first]]

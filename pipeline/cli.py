@@ -1,0 +1,304 @@
+"""The ``tympani`` command line (SPEC §7).
+
+Each subcommand is a :class:`Command` in :data:`COMMANDS`: a help line, a function that adds
+its arguments to an ``argparse`` parser, and a function that runs it and returns the exit
+status. To add a command, write ``_configure_x(parser)`` and ``_run_x(args) -> int`` (import
+heavy modules inside ``_run_x``) and add ``"x": Command(...)`` to :data:`COMMANDS`.
+
+Exit status: 0 success; 2 bad usage or bad input (``tympani: <one line>`` on stderr, no
+traceback); 130 interrupted (outputs are written atomically, so nothing is left half written);
+1 anything else (one line; ``--debug`` shows the traceback). A batch that finished with some
+bad inputs exits 2 with the good ones written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import traceback
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+from vision.errors import InputError, is_input_error
+
+__all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
+
+
+class UsageError(Exception):
+    """Bad command-line usage (argparse errors, conflicting options): exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line and do not exit the interpreter."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand.
+
+    Parameters
+    ----------
+    help : str
+        One line for ``tympani --help``.
+    configure : callable
+        ``configure(parser)`` adds the command's arguments.
+    run : callable
+        ``run(args) -> int`` does the work and returns the exit status.
+    description : str
+        Longer text for ``tympani CMD --help`` (default: ``help``).
+    """
+
+    help: str
+    configure: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str = ""
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, not {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
+    return value
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated frame numbers, got {text!r}") from None
+    if not values or any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected frame numbers >= 0, got {text!r}")
+    return values
+
+
+def _add_extract_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("registration")
+    group.add_argument("--recheck-every", type=_nonneg_int, default=150, metavar="N",
+                       help="check the registration every N frames, re-register if the camera moved (0: never; default 150)")
+    group.add_argument("--register-frames", type=_positive_int, default=5, metavar="N",
+                       help="frames used for registration (default 5)")
+
+
+def _extract_config(args: argparse.Namespace):
+    from pipeline.batch import ExtractConfig
+
+    return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames)
+
+
+# --------------------------------------------------------------------------- extract
+
+
+def _configure_extract(p: argparse.ArgumentParser) -> None:
+    p.add_argument("videos", nargs="*", metavar="VIDEO", help="video files or folders of frames")
+    p.add_argument("--manifest", metavar="M", help="manifest CSV (SPEC §6); its rows with a video are extracted")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--fps", type=_positive_float, metavar="F",
+                   help="frame rate (frames/s): needed for folders of frames; overrides a video's own clock")
+    p.add_argument("--overwrite", action="store_true", help="redo videos whose outputs exist (default: skip them)")
+    _add_extract_options(p)
+
+
+def _run_extract(args: argparse.Namespace) -> int:
+    from pipeline.batch import extract_batch, read_manifest
+    from pipeline.io import atomic_write_csv
+
+    if bool(args.videos) == bool(args.manifest):
+        raise UsageError("tympani extract: give either VIDEO... or --manifest M (see 'tympani extract --help')")
+    if args.manifest:
+        table = read_manifest(args.manifest)
+        items = table[table["video"].notna()]
+        if items.empty:
+            raise InputError(args.manifest, "no trial has a video to extract")
+    else:
+        items = list(args.videos)
+    summary = extract_batch(items, args.out, _extract_config(args), workers=args.workers,
+                            overwrite=args.overwrite, progress=not args.quiet, fps=args.fps)
+    atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)
+    counts = summary["status"].value_counts()
+    for _, row in summary[summary["status"] == "failed"].iterrows():
+        print(f"tympani: {row['error']}", file=sys.stderr)
+    print(
+        f"extract: {counts.get('ok', 0)} ok, {counts.get('skipped', 0)} skipped, {counts.get('failed', 0)} failed;"
+        f" {int(summary['n_ok'].fillna(0).sum())} of {int(summary['n_frames'].fillna(0).sum())} frames measured -> {args.out}"
+    )
+    if (summary["error_kind"] == "error").any():
+        return 1
+    return 2 if (summary["status"] == "failed").any() else 0
+
+
+# --------------------------------------------------------------------------- annotate
+
+
+def _configure_annotate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("video", metavar="VIDEO", help="video file or folder of frames")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--frames", type=_int_list, metavar="0,10,20", help="frames to draw")
+    which.add_argument("--every", type=_positive_int, metavar="N", help="draw every N-th frame (default: ~10 frames)")
+    p.add_argument("--mp4", action="store_true", help="also write an annotated mp4 of every frame")
+    p.add_argument("--label", action="append", nargs="+", metavar="FRAME tip=X,Y bot=X,Y", default=[],
+                   help="manual label of a frame in pixels (repeatable); compared with the measurement")
+    p.add_argument("--labels", metavar="CSV", help="labels CSV: frame,tip_x_px,tip_y_px,bot_x_px,bot_y_px")
+    p.add_argument("--fps", type=_positive_float, metavar="F", help="frame rate (frames/s) for folders of frames")
+    p.add_argument("--trial", metavar="NAME", help="trial name for the output files (default: file stem)")
+    _add_extract_options(p)
+
+
+def _run_annotate(args: argparse.Namespace) -> int:
+    import pandas as pd
+
+    from pipeline.annotate import annotate_video, labels_frame, parse_label, read_labels, summarize_comparison
+
+    tables = []
+    if args.labels:
+        tables.append(read_labels(args.labels))
+    if args.label:
+        tables.append(labels_frame(parse_label(tokens) for tokens in args.label))
+    labels = labels_frame(pd.concat(tables).to_dict("records")) if tables else None
+    result = annotate_video(args.video, args.out, _extract_config(args), frames=args.frames, every=args.every,
+                            mp4=args.mp4, labels=labels, fps=args.fps, trial=args.trial, progress=not args.quiet)
+    for warning in result.warnings:
+        print(f"tympani: warning: {warning}", file=sys.stderr)
+    print(f"annotate: {len(result.images)} frame(s) drawn" + (f", video {result.video}" if result.video else "")
+          + f" -> {args.out}")
+    if result.comparison is not None:
+        print(summarize_comparison(result.comparison))
+    return 0
+
+
+# --------------------------------------------------------------------------- bench
+
+
+def _configure_bench(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--frames", type=_positive_int, default=200, metavar="N", help="frames of the rendered video (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
+    p.add_argument("--video", metavar="VIDEO", help="time this video instead of rendering one")
+    p.add_argument("--fps", type=_positive_float, metavar="F", help="frame rate (frames/s) for a folder of frames")
+
+
+def _run_bench(args: argparse.Namespace) -> int:
+    from pipeline.bench import format_bench, run_bench
+
+    print(format_bench(run_bench(video=args.video, n_frames=args.frames, seed=args.seed, fps=args.fps)))
+    return 0
+
+
+# --------------------------------------------------------------------------- registry
+
+#: The subcommands, by name. Commands of SPEC §7 not listed here (render, sync, simulate, fit,
+#: bounds, diagnose, evaluate-diagnosis, run, demo) are added by their modules' authors.
+COMMANDS: dict[str, Command] = {
+    "extract": Command(
+        "angles tables (and registration JSON) per video",
+        _configure_extract,
+        _run_extract,
+        "Extract per-frame contact angles from videos into <trial>.angles.csv, <trial>.registration.json and "
+        "<trial>.provenance.json in --out. Videos whose outputs exist are skipped unless --overwrite. "
+        "Exit 0 if every video succeeded, 2 if some inputs were bad (the others are still written), 1 on errors.",
+    ),
+    "annotate": Command(
+        "frames with the registration, walls, array, tip, contact start and angles drawn on them",
+        _configure_annotate,
+        _run_annotate,
+        "Draw the registered phantom and the measurement on chosen frames (PNG, optionally mp4), and compare "
+        "manual labels (--label / --labels, pixels) with the automatic angles.",
+    ),
+    "bench": Command(
+        "throughput, per-stage time and memory figures",
+        _configure_bench,
+        _run_bench,
+        "Render a 640x480 video and time decoding against full extraction on one core.",
+    ),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``tympani`` argument parser with every command in :data:`COMMANDS`."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        tool_version = version("tympani")
+    except PackageNotFoundError:
+        tool_version = "0+unknown"
+    parser = _Parser(prog="tympani", description="Contact angles and forces of cochlear-implant insertions "
+                                                 "into planar phantoms (see SPEC.md).")
+    parser.add_argument("--version", action="version", version=f"tympani {tool_version}")
+    parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks on errors")
+    common.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name, cmd in COMMANDS.items():
+        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help, parents=[common])
+        cmd.configure(p)
+        p.set_defaults(_run=cmd.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``tympani`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    if not debug:
+        # keep FFmpeg's and OpenCV's chatter about damaged files off stderr (one-line errors)
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if getattr(args, "_run", None) is None:
+            raise UsageError("tympani: no command given (see 'tympani --help')")
+        return int(args._run(args))
+    except SystemExit as exc:  # --help, --version
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    except UsageError as exc:
+        print(" ".join(str(exc).split()), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("tympani: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if debug:
+            traceback.print_exc()
+        if is_input_error(exc):
+            print(f"tympani: {' '.join(str(exc).split())}", file=sys.stderr)
+            return 2
+        text = " ".join(str(exc).split())
+        hint = "" if debug else " (run with --debug for the traceback)"
+        print(f"tympani: error: {type(exc).__name__}: {text}{hint}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,417 @@
+"""Video → angles plumbing: atomic files, provenance, extraction, batches, manifest, annotate.
+
+Registration and measurement are replaced by the fakes of ``pipeline_fakes`` so these tests
+check the plumbing only, and stay valid whatever the real vision code does.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import functools
+import json
+import math
+import multiprocessing as mp
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import pipeline_fakes as fakes
+from pipeline import batch
+from pipeline.batch import (
+    ANGLE_COLUMNS,
+    ExtractConfig,
+    VideoItem,
+    extract_batch,
+    extract_video,
+    output_paths,
+    process_video,
+    read_manifest,
+)
+from pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
+from vision.errors import InputError
+from vision.geometry import DEFAULT_PHANTOM, point_angle
+
+SPEC_REG_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
+
+
+@pytest.fixture
+def fake_vision(monkeypatch):
+    fakes.install(monkeypatch)
+    return fakes.fake_config()
+
+
+def _leftovers(folder):
+    return [p.name for p in folder.iterdir() if p.name.endswith(".tmp") or p.name.startswith(".")]
+
+
+# --------------------------------------------------------------------------- io
+
+
+def test_atomic_write_text_replaces_and_keeps_mode(tmp_path):
+    target = tmp_path / "sub" / "a.txt"
+    atomic_write_text(target, "one")
+    atomic_write_text(target, "two")
+    assert target.read_text() == "two"
+    assert oct(target.stat().st_mode & 0o777) == oct(0o666 & ~_umask())
+    assert _leftovers(target.parent) == []
+
+
+def _umask():
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def test_crash_while_writing_leaves_old_file_and_no_temp(tmp_path):
+    target = tmp_path / "a.csv"
+    target.write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_open(target) as fh:
+            fh.write("half of the new cont")
+            raise RuntimeError("crash")
+    assert target.read_text() == "old" and _leftovers(tmp_path) == []
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_open(tmp_path / "b.csv") as fh:
+            fh.write("x")
+            raise KeyboardInterrupt
+    assert not (tmp_path / "b.csv").exists() and _leftovers(tmp_path) == []
+
+
+def test_crash_at_rename_leaves_no_partial_file(tmp_path, monkeypatch):
+    def broken_replace(src, dst):
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(os, "replace", broken_replace)
+    with pytest.raises(OSError):
+        atomic_write_json(tmp_path / "x.json", {"a": 1})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_csv_and_json_formats(tmp_path):
+    df = pd.DataFrame({"frame": [0, 1], "theta_tip": [1.5, math.nan], "ok": [True, False]})
+    atomic_write_csv(tmp_path / "t.csv", df)
+    assert (tmp_path / "t.csv").read_text().splitlines() == ["frame,theta_tip,ok", "0,1.5,true", "1,,false"]
+    atomic_write_json(tmp_path / "t.json", {"a": np.float64(math.nan), "b": np.int64(3), "c": np.arange(2),
+                                            "cfg": ExtractConfig(measure=None, registration=None)})
+    d = json.loads((tmp_path / "t.json").read_text())
+    assert d["a"] is None and d["b"] == 3 and d["c"] == [0, 1]
+    assert d["cfg"]["recheck_every"] == 150 and d["cfg"]["phantom"]["c_mm"] == pytest.approx(7.967)
+
+
+def test_content_hash_and_provenance(tmp_path):
+    small = tmp_path / "small.bin"
+    small.write_bytes(b"abc")
+    h1 = content_hash(small)
+    small.write_bytes(b"abd")
+    assert content_hash(small) != h1 and content_hash(small).startswith("sha256-ends:3:")
+    big = tmp_path / "big.bin"
+    data = bytearray(os.urandom(3 << 20))
+    big.write_bytes(bytes(data))
+    h_big = content_hash(big)
+    data[len(data) // 2] ^= 0xFF  # the middle is not hashed (documented: a fingerprint)
+    big.write_bytes(bytes(data))
+    assert content_hash(big) == h_big
+    data[-1] ^= 0xFF
+    big.write_bytes(bytes(data))
+    assert content_hash(big) != h_big
+    prov = provenance(big, {"x": 1.0, "cfg": ExtractConfig(measure=None, registration=None)}, n_frames=3)
+    for key in ("tool", "version", "created_utc", "input", "params", "environment", "n_frames"):
+        assert key in prov
+    assert prov["input"]["hash"] == content_hash(big) and prov["input"]["path"] == str(big.resolve())
+    assert {"python", "numpy", "opencv"} <= set(prov["environment"])
+    json.dumps(prov, allow_nan=False)
+    assert content_hash(tmp_path).startswith("sha256-folder:2:")
+
+
+# --------------------------------------------------------------------------- config
+
+
+def test_extract_config_defaults_and_validation():
+    cfg = ExtractConfig(measure=None, registration=None)
+    assert cfg.recheck_every == 150 and cfg.register_frames == 5
+    assert cfg.recheck_threshold_px(fakes.FakeRegistration(None, residual_px=1.0)) == pytest.approx(5.0)
+    with pytest.raises(ValueError):
+        ExtractConfig(measure=None, registration=None, register_frames=0)
+    with pytest.raises(ValueError):
+        ExtractConfig(measure=None, registration=None, recheck_every=-1)
+
+
+# --------------------------------------------------------------------------- one video
+
+
+def test_extract_video_rows_columns_and_failed_frames(tmp_path, fake_vision):
+    video = fakes.write_video(tmp_path / "t1.mp4", n=12, dark={3, 4})
+    table, reg = extract_video(video, fake_vision)
+    assert list(table.columns[: len(ANGLE_COLUMNS)]) == list(ANGLE_COLUMNS)
+    assert "depth_mm" in table.columns and table.columns[-1] == "reg_epoch"
+    assert table["frame"].tolist() == list(range(12)) and (table["trial"] == "t1").all()
+    assert np.allclose(table["time_s"], np.arange(12) / 25.0)
+    assert table["ok"].dtype == bool and table["ok"].sum() == 10
+    bad = table[~table["ok"]]
+    assert bad["frame"].tolist() == [3, 4] and bad["theta_tip"].isna().all() and (bad["reason"] == "no array in view").all()
+    assert (table.loc[table["ok"], "reason"] == "").all()
+    assert reg.to_dict().keys() == SPEC_REG_KEYS and reg.n_frames == 5  # registered once, on 5 frames
+    assert len(table.attrs["registrations"]) == 1 and table.attrs["timing_s"]["measure"] >= 0
+
+
+def test_short_video_registers_on_what_it_has(tmp_path, fake_vision):
+    table, reg = extract_video(fakes.write_video(tmp_path / "s.mp4", n=3), fake_vision)
+    assert len(table) == 3 and reg.n_frames == 3
+
+
+def test_camera_bump_triggers_re_registration(tmp_path, monkeypatch):
+    fakes.install(monkeypatch)
+    cfg = fakes.fake_config(recheck_every=5, register_frames=2)
+    table, reg = extract_video(fakes.write_video(tmp_path / "b.mp4", n=24, bumped_from=12), cfg)
+    regs = table.attrs["registrations"]
+    assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
+    assert regs[1]["check_residual_px"] == 50.0 and regs[1]["threshold_px"] == pytest.approx(3.5)
+    assert [f for f, _ in table.attrs["checks"]] == [5, 10, 15, 20]
+    assert table.loc[table["frame"] < 15, "reg_epoch"].eq(0).all() and table.loc[table["frame"] >= 15, "reg_epoch"].eq(1).all()
+    assert len(table) == 24 and reg.pose.centre_x_px == fakes.W / 2  # the first registration is returned
+
+
+def test_registration_failure_is_input_error(tmp_path, fake_vision):
+    with pytest.raises(InputError, match="registration failed: no phantom found"):
+        extract_video(fakes.write_video(tmp_path / "black.mp4", n=6, all_dark=True), fake_vision)
+
+
+def test_measurement_exception_keeps_the_row(tmp_path, monkeypatch, fake_vision):
+    import vision.angles
+
+    def flaky(gray, registration, phantom, array, cfg):
+        if gray[8:].mean() > 100:
+            raise ValueError("boom")
+        return fakes.fake_measure_frame(gray, registration, phantom, array, cfg)
+
+    monkeypatch.setattr(vision.angles, "measure_frame", flaky)
+    table, _ = extract_video(fakes.write_video(tmp_path / "f.mp4", n=12), fake_vision)
+    failed = table[~table["ok"]]
+    assert len(table) == 12 and len(failed) > 0
+    assert failed["reason"].str.contains("measurement raised ValueError: boom").all()
+    assert any("measurement raised" in w for w in table.attrs["warnings"])
+
+
+def test_process_video_writes_resumes_and_overwrites(tmp_path, fake_vision):
+    video = fakes.write_video(tmp_path / "t2.mp4", n=8)
+    out = tmp_path / "out"
+    res = process_video(video, out, fake_vision)
+    assert res["status"] == "ok" and res["n_frames"] == 8 and res["n_ok"] == 8
+    files = output_paths(out, "t2")
+    reg = json.loads(files["registration"].read_text())
+    assert SPEC_REG_KEYS <= reg.keys() and reg["registrations"][0]["frame"] == 0
+    prov = json.loads(files["provenance"].read_text())
+    assert prov["params"]["extract"]["register_frames"] == 5 and prov["n_frames"] == 8
+    assert prov["input"]["hash"] == content_hash(video)
+    text = files["angles"].read_text().splitlines()
+    assert text[0].startswith("trial,frame,time_s,theta_tip,theta_bot,theta_con,ok,reason")
+    assert ",true," in text[1]
+    back = pd.read_csv(files["angles"])
+    assert back["ok"].dtype == bool and len(back) == 8
+    mtimes = {k: f.stat().st_mtime_ns for k, f in files.items()}
+    again = process_video(video, out, fake_vision)
+    assert again["status"] == "skipped" and again["n_frames"] == 8 and again["n_ok"] == 8
+    assert {k: f.stat().st_mtime_ns for k, f in files.items()} == mtimes
+    assert process_video(video, out, fake_vision, overwrite=True)["status"] == "ok"
+    files["provenance"].unlink()  # an unfinished set is redone
+    assert process_video(video, out, fake_vision)["status"] == "ok"
+    assert _leftovers(out) == []
+
+
+def test_interrupt_while_writing_leaves_no_outputs(tmp_path, monkeypatch, fake_vision):
+    real = batch.atomic_write_json
+    calls = []
+
+    def interrupted(path, obj, **kw):
+        calls.append(path)
+        if str(path).endswith("provenance.json"):
+            raise KeyboardInterrupt
+        return real(path, obj, **kw)
+
+    monkeypatch.setattr(batch, "atomic_write_json", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        process_video(fakes.write_video(tmp_path / "k.mp4", n=4), tmp_path / "out", fake_vision)
+    assert len(calls) == 2 and list((tmp_path / "out").iterdir()) == []
+
+
+def test_trial_name_and_folder_input(tmp_path, fake_vision):
+    folder = fakes.write_folder(tmp_path / "trial_7", n=6)
+    res = process_video(folder, tmp_path / "out", fake_vision, fps=30.0)
+    assert res["trial"] == "trial_7" and res["n_frames"] == 6
+    assert (tmp_path / "out" / "trial_7.angles.csv").exists()
+    with pytest.raises(InputError, match="trial name"):
+        process_video(folder, tmp_path / "out", fake_vision, fps=30.0, trial="../escape")
+
+
+# --------------------------------------------------------------------------- batches
+
+
+def _videos(tmp_path):
+    good1 = fakes.write_video(tmp_path / "good1.mp4", n=6)
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"this is not a video" * 50)
+    good2 = fakes.write_video(tmp_path / "good2.mp4", n=7)
+    black = fakes.write_video(tmp_path / "black.mp4", n=5, all_dark=True)
+    return [good1, bad, good2, black]
+
+
+def _check_summary(summary, out):
+    assert summary["trial"].tolist() == ["good1", "bad", "good2", "black"]
+    assert summary["status"].tolist() == ["ok", "failed", "ok", "failed"]
+    assert summary["n_frames"].tolist()[0::2] == [6, 7]
+    assert summary.loc[1, "error_kind"] == "input" and "not a video" in summary.loc[1, "error"]
+    assert "registration failed" in summary.loc[3, "error"] and "\n" not in "".join(summary["error"])
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        f"{t}.{k}" for t in ("good1", "good2") for k in ("angles.csv", "registration.json", "provenance.json")
+    )
+
+
+def test_batch_one_bad_video_among_good_ones(tmp_path, fake_vision):
+    out = tmp_path / "out"
+    summary = extract_batch(_videos(tmp_path), out, fake_vision, progress=False)
+    _check_summary(summary, out)
+    again = extract_batch(_videos(tmp_path)[::2], out, fake_vision, progress=False)
+    assert again["status"].tolist() == ["skipped", "skipped"]
+
+
+def test_batch_with_process_pool_executor(tmp_path, fake_vision):
+    out = tmp_path / "out"
+    with cf.ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("fork")) as pool:
+        summary = extract_batch(_videos(tmp_path), out, fake_vision, executor=pool, progress=False)
+    _check_summary(summary, out)
+
+
+def test_batch_with_workers_keyword(tmp_path, fake_vision, monkeypatch):
+    # fork keeps the fakes in the workers whatever the platform's default start method
+    monkeypatch.setattr(batch.cf, "ProcessPoolExecutor",
+                        functools.partial(cf.ProcessPoolExecutor, mp_context=mp.get_context("fork")))
+    out = tmp_path / "out"
+    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, workers=2, progress=False), out)
+
+
+def test_batch_items_and_duplicate_trials(tmp_path, fake_vision):
+    v = fakes.write_video(tmp_path / "v.mp4", n=4)
+    folder = fakes.write_folder(tmp_path / "frames", n=4)
+    items = [VideoItem(str(v), trial="a"), {"path": folder, "trial": "b", "fps": 10.0}]
+    summary = extract_batch(items, tmp_path / "out", fake_vision, progress=False)
+    assert summary["status"].tolist() == ["ok", "ok"]
+    with pytest.raises(InputError, match="also used"):
+        extract_batch([v, v], tmp_path / "out2", fake_vision, progress=False)
+
+
+class _SerialExecutor:
+    """The smallest executor: ``submit`` runs at once; futures only have ``result()``."""
+
+    class _Done:
+        def __init__(self, value):
+            self.value = value
+
+        def result(self):
+            return self.value
+
+    def submit(self, fn, *args, **kwargs):
+        return self._Done(fn(*args, **kwargs))
+
+
+def test_batch_with_any_submit_executor(tmp_path, fake_vision):
+    out = tmp_path / "out"
+    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, executor=_SerialExecutor(), progress=False), out)
+
+
+# --------------------------------------------------------------------------- manifest
+
+
+def _manifest(tmp_path, body: str):
+    (tmp_path / "data").mkdir(exist_ok=True)
+    for name in ("a.mp4", "a_force.csv", "b.mp4", "b_force.csv"):
+        (tmp_path / "data" / name).write_text("x")
+    path = tmp_path / "manifest.csv"
+    path.write_text(body)
+    return path
+
+
+def test_read_manifest_valid(tmp_path):
+    path = _manifest(tmp_path, "# an experiment\ntrial,speed_mm_s,video,force,fps,video_t0_s,note\n"
+                               "a,0.5,data/a.mp4,data/a_force.csv,30,,first\n\n"
+                               "b,7.5,data/b.mp4,data/b_force.csv,,0.25,\n")
+    m = read_manifest(path)
+    assert m["trial"].tolist() == ["a", "b"] and m["speed_mm_s"].tolist() == [0.5, 7.5]
+    assert m.loc[0, "video"] == str((tmp_path / "data" / "a.mp4").resolve())
+    assert m.loc[0, "fps"] == 30.0 and math.isnan(m.loc[1, "fps"])
+    assert m["video_t0_s"].tolist() == [0.0, 0.25] and m["line"].tolist() == [3, 5]
+    assert m["angles"].isna().all() and m.loc[0, "note"] == "first"
+
+
+@pytest.mark.parametrize(
+    "body, where, message",
+    [
+        ("trial,video,force\na,data/a.mp4,data/a_force.csv\n", ":1", "missing column(s): speed_mm_s"),
+        ("trial,speed_mm_s,force\na,1,data/a_force.csv\n", ":1", "'video' or an 'angles' column"),
+        ("trial,speed_mm_s,video,force\na,1,data/a.mp4,data/a_force.csv\na,2,data/b.mp4,data/b_force.csv\n",
+         ":3", "duplicate trial 'a' (first on line 2)"),
+        ("trial,speed_mm_s,video,force\na,1,data/a.mp4,data/a_force.csv\nb,1,data/nope.mp4,data/b_force.csv\n",
+         ":3", "video file 'data/nope.mp4' not found"),
+        ("trial,speed_mm_s,video,force\na,fast,data/a.mp4,data/a_force.csv\n", ":2", "speed_mm_s 'fast' is not a number"),
+        ("trial,speed_mm_s,video,force\na,-1,data/a.mp4,data/a_force.csv\n", ":2", "positive"),
+        ("trial,speed_mm_s,video,force\na,1,data/a.mp4\n", ":2", "3 fields, but the header has 4"),
+        ("trial,speed_mm_s,video,force\n", "", "no trials"),
+    ],
+)
+def test_read_manifest_errors_name_file_and_line(tmp_path, body, where, message):
+    path = _manifest(tmp_path, body)
+    with pytest.raises(InputError) as info:
+        read_manifest(path)
+    assert str(info.value).startswith(f"{path}{where}: ") and message in str(info.value)
+
+
+def test_read_manifest_missing_file(tmp_path):
+    with pytest.raises(InputError, match="no such manifest"):
+        read_manifest(tmp_path / "nope.csv")
+
+
+# --------------------------------------------------------------------------- annotate / drawing
+
+
+def test_annotate_frame_draws_on_a_copy():
+    from vision.drawing import annotate_frame
+
+    reg = fakes.FakeRegistration(fakes.CameraPose(320, 240, 0.3, 20.0, False))
+    image = np.full((480, 640), 90, np.uint8)
+    m = fakes.fake_measure_frame(np.full((48, 64), 150, np.uint8), reg, None, None, None)
+    out = annotate_frame(image, reg, DEFAULT_PHANTOM, m, labels_px={"tip": (300, 200), "bot": None}, title="t")
+    assert out.shape == (480, 640, 3) and out.dtype == np.uint8 and (image == 90).all()
+    assert (out != 90).any(axis=2).mean() > 0.01  # walls, array, text
+    failed = annotate_frame(image, reg, DEFAULT_PHANTOM, fakes.FakeMeasurement(ok=False, reason="x"))
+    assert failed.shape == (480, 640, 3)
+
+
+def test_annotate_video_with_labels(tmp_path, fake_vision):
+    from pipeline.annotate import annotate_video, labels_frame, parse_label
+
+    video = fakes.write_video(tmp_path / "an.mp4", n=12)
+    labels = labels_frame([parse_label(["4", "tip=40,20", "bot=30,30"]), parse_label(["9", "tip=50,10"]),
+                           parse_label(["99", "tip=1,1"])])
+    res = annotate_video(video, tmp_path / "out", fake_vision, frames=[0, 4], labels=labels, mp4=True)
+    assert sorted(p.name for p in res.images) == ["an.frame000000.png", "an.frame000004.png", "an.frame000009.png"]
+    assert res.video is not None and res.video.stat().st_size > 0 and any("99" in w for w in res.warnings)
+    cmp = res.comparison
+    assert cmp["frame"].tolist() == [4, 9] and cmp["ok_auto"].all()
+    pose = fakes.fake_register([np.full((48, 64), 100, np.uint8)], None, None).pose
+    expected = point_angle(pose.to_phantom(np.array([[40.0, 20.0]])), DEFAULT_PHANTOM)[0]
+    assert cmp.loc[0, "theta_tip_label"] == pytest.approx(expected)
+    assert cmp.loc[0, "d_theta_tip"] == pytest.approx(cmp.loc[0, "theta_tip_auto"] - expected)
+    assert math.isnan(cmp.loc[1, "theta_bot_label"])
+    stored = pd.read_csv(tmp_path / "out" / "an.labels.csv")
+    assert stored["frame"].tolist() == [4, 9] and {"tip_x_px", "theta_tip"} <= set(stored.columns)
+    assert (tmp_path / "out" / "an.label_compare.csv").exists() and (tmp_path / "out" / "an.annotated.csv").exists()
+    assert _leftovers(tmp_path / "out") == []
+
+
+def test_parse_label_errors():
+    from pipeline.annotate import parse_label
+
+    for tokens in (["x", "tip=1,2"], ["3", "tip=1"], ["3", "nose=1,2"], ["3"]):
+        with pytest.raises(InputError):
+            parse_label(tokens)
