@@ -214,6 +214,12 @@ def _run_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- simulate, fit (pipeline/force_cli.py)
+
+from pipeline import force_cli as _force_cli  # noqa: E402  (cheap: argparse only; the model loads on run)
+from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: argparse only)
+
+
 # --------------------------------------------------------------------------- registry
 
 #: The subcommands, by name. Commands of SPEC §7 not listed here (render, sync, simulate, fit,
@@ -240,6 +246,13 @@ COMMANDS: dict[str, Command] = {
         _run_bench,
         "Render a 640x480 video and time decoding against full extraction on one core.",
     ),
+    "simulate": Command(_force_cli.SIMULATE_HELP, _force_cli.configure_simulate, _force_cli.run_simulate,
+                        _force_cli.SIMULATE_DESCRIPTION),
+    "fit": Command(_force_cli.FIT_HELP, _force_cli.configure_fit, _force_cli.run_fit, _force_cli.FIT_DESCRIPTION),
+    "sync": Command(_sync_bounds_cli.SYNC_HELP, _sync_bounds_cli.configure_sync, _sync_bounds_cli.run_sync,
+                    _sync_bounds_cli.SYNC_DESCRIPTION),
+    "bounds": Command(_sync_bounds_cli.BOUNDS_HELP, _sync_bounds_cli.configure_bounds, _sync_bounds_cli.run_bounds,
+                      _sync_bounds_cli.BOUNDS_DESCRIPTION),
 }
 
 

@@ -122,12 +122,12 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
             name = Path("videos") / (trial if cfg.png else f"{trial}.mp4")
             truth = render_video(out / name, spec, seed=int(rng.integers(2**31)))
             truth.insert(0, "trial", trial)
-            atomic_write_csv(truth, out / "truth" / f"{trial}.csv")
+            atomic_write_csv(out / "truth" / f"{trial}.csv", truth)
             rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), fps=spec.effective_fps(), video_t0_s=0.0))
     manifest = pd.DataFrame(rows)
-    atomic_write_csv(manifest, out / "manifest.csv")
+    atomic_write_csv(out / "manifest.csv", manifest)
     atomic_write_json(
-        dict(pose=dict(asdict(pose), residual_px=0.0), appearance=asdict(look), config=asdict(cfg), seed=seed),
         out / "truth" / "pose.json",
+        dict(pose=dict(asdict(pose), residual_px=0.0), appearance=asdict(look), config=asdict(cfg), seed=seed),
     )
     return manifest

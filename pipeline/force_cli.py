@@ -1,0 +1,173 @@
+"""The ``tympani simulate`` and ``tympani fit`` commands (registered in :mod:`pipeline.cli`).
+
+Kept apart from ``pipeline/cli.py`` so that file only lists them. Importing this module is cheap
+(argparse only); the model and the fit are imported when a command runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = [
+    "configure_simulate",
+    "run_simulate",
+    "configure_fit",
+    "run_fit",
+    "SIMULATE_HELP",
+    "SIMULATE_DESCRIPTION",
+    "FIT_HELP",
+    "FIT_DESCRIPTION",
+]
+
+SIMULATE_HELP = "the force model on a scenario of the paper's TABLE I"
+SIMULATE_DESCRIPTION = (
+    "Evaluate the SPEC §4 force model along scenario S1..S4 at the given insertion speeds (mm/s). "
+    "The scenarios are a documented reconstruction of the paper's TABLE I (not available). Without --out a "
+    "compact table (force in g per step and speed) is printed; with --out the SPEC §6 simulation table "
+    "(scenario, speed_mm_s, theta_bot, theta_tip, theta_con, force_g, step) is written as CSV."
+)
+FIT_HELP = "identified friction-model parameters with uncertainties"
+FIT_DESCRIPTION = (
+    "Fit the SPEC §4 force model (Stribeck friction, pressures linear in theta_con) to a synced table over "
+    "all speeds by bounded least squares from several seeded starts. Writes fit.json (parameters with "
+    "standard errors, correlation, AIC/BIC, per-speed RMSE, warnings), fit_residuals.csv and "
+    "fit.provenance.json to --out. The contact width is held by default: it is exactly degenerate with the "
+    "pressures."
+)
+
+_SPEED_DEFAULT = (0.5, 3.0, 7.5)
+
+
+def _speed_list(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in mm/s, got {text!r}") from None
+    if not values or not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected positive speeds in mm/s, got {text!r}")
+    return values
+
+
+def _name_list(text: str) -> list[str]:
+    from pipeline.friction import FLAT_NAMES
+
+    names = [v.strip() for v in text.split(",") if v.strip()]
+    unknown = [n for n in names if n not in FLAT_NAMES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown parameter name(s) {', '.join(unknown) or repr(text)}; choose from {', '.join(FLAT_NAMES)}")
+    return names
+
+
+def _assignments(text: str) -> dict[str, float]:
+    from pipeline.friction import FLAT_NAMES
+
+    out: dict[str, float] = {}
+    for item in (v.strip() for v in text.split(",") if v.strip()):
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or name not in FLAT_NAMES:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE with NAME one of {', '.join(FLAT_NAMES)}, got {item!r}")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item!r}: {value!r} is not a number") from None
+    return out
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def configure_simulate(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``tympani simulate``."""
+    p.add_argument("--scenario", required=True, type=str.upper, choices=["S1", "S2", "S3", "S4"],
+                   help="scenario of TABLE I (reconstructed presets)")
+    p.add_argument("--speeds", type=_speed_list, default=list(_SPEED_DEFAULT), metavar="V,..",
+                   help="insertion speeds in mm/s (default 0.5,3,7.5)")
+    p.add_argument("--out", metavar="FILE", help="write the simulation table to this CSV file")
+    p.add_argument("--friction-mode", choices=["vector", "axial"], default="vector",
+                   help="SPEC's vector sum of friction forces (default) or axial transmission (comparison only)")
+
+
+def _compact(table) -> str:
+    """Force (g) per step (rows) and speed (columns) as text."""
+    wide = table.pivot_table(index=["step", "theta_bot", "theta_tip", "theta_con"], columns="speed_mm_s",
+                             values="force_g").reset_index()
+    wide.columns = [c if isinstance(c, str) else f"F@{c:g}mm/s_g" for c in wide.columns]
+    return wide.drop(columns="step").to_string(index=False, float_format=lambda v: f"{v:.3f}")
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    """Run ``tympani simulate``; returns the exit status."""
+    from pipeline.friction import SCENARIOS, SIM_COLUMNS, simulate
+
+    table = simulate(args.scenario, args.speeds, friction_mode=args.friction_mode)
+    table = table[list(SIM_COLUMNS) + ["step"]]
+    sc = SCENARIOS[args.scenario]
+    if args.out:
+        from pipeline.io import atomic_write_csv
+
+        atomic_write_csv(args.out, table)
+        peaks = table.groupby("speed_mm_s")["force_g"].max()
+        summary = ", ".join(f"{v:g} mm/s {f:.3f} g" for v, f in peaks.items())
+        print(f"simulate: {sc.name}, {len(table)} rows, peak force {summary} -> {args.out}")
+    else:
+        print(f"# {sc.name}: {sc.description} ({sc.source})")
+        print(_compact(table))
+    return 0
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def configure_fit(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``tympani fit``."""
+    p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, SPEC §6)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (fit.json and companions)")
+    p.add_argument("--free", type=_name_list, default=None, metavar="NAME,..",
+                   help="parameters to fit (default p_tip0_MPa,p_tip1_MPa_per_rad,p_bot0_MPa,p_bot1_MPa_per_rad,"
+                        "mu_s,mu_k,v_s_mm_s)")
+    p.add_argument("--fix", type=_assignments, default={}, metavar="NAME=VALUE,..",
+                   help="values of held parameters (default contact_width_mm=0.3,delta_s=2,mu_v_s_per_mm=0)")
+    p.add_argument("--starts", type=_positive_int, default=8, metavar="N", help="number of starts (default 8)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
+    p.add_argument("--se", choices=["auto", "cluster", "neff", "naive"], default="auto",
+                   help="standard errors reported as stderr (default auto: trial clusters when there are "
+                        "enough trials, else effective sample size)")
+    p.add_argument("--friction-mode", choices=["vector", "axial"], default="vector",
+                   help="model variant (default SPEC's vector sum)")
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    """Run ``tympani fit``; returns the exit status."""
+    import os
+
+    from pipeline.identify import DEFAULT_FREE, FitOptions, fit_synced, read_synced, write_fit
+
+    table = read_synced(args.synced)
+    free = tuple(args.free) if args.free else DEFAULT_FREE
+    options = FitOptions(free=free, fixed=dict(args.fix), starts=args.starts, seed=args.seed,
+                         se=args.se, friction_mode=args.friction_mode)
+    result = fit_synced(table, options, source=args.synced)
+    path = write_fit(result, args.out, source=args.synced)
+    for warning in result.warnings:
+        print(f"tympani: warning: {warning}", file=sys.stderr)
+    width = max(len(n) for n in result.params)
+    for name, est in result.params.items():
+        flag = "  (at bound)" if est.at_bound else ""
+        print(f"  {name:<{width}} = {est.value:.5g} ± {est.stderr:.2g}{flag}")
+    speeds = ", ".join(f"{r.speed_mm_s:g}: {r.rmse_g:.3g}" for r in result.by_speed.itertuples())
+    print(f"fit: n={result.n}, rmse {result.rmse_g:.4g} g (by speed {speeds}), AIC {result.aic:.1f}, "
+          f"BIC {result.bic:.1f}, stderr {result.se_method} -> {os.fspath(path)}")
+    return 0

@@ -1,0 +1,225 @@
+"""Eq. (8)-(9) bounds: recovery, band coverage, exclusions, files, figures and the command."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.bounds import (
+    BANDS_COLUMNS,
+    BoundsConfig,
+    bands,
+    fit_bounds,
+    fit_eq8,
+    read_synced,
+    write_bounds,
+)
+from pipeline.cli import main
+from vision.errors import InputError
+
+C1, C2 = -0.3, 1.4
+SIGMA_TRIAL, SIGMA_WITHIN, RHO = 0.15, 0.10, 0.9
+
+
+def _iid(rng, n_trials=10, per_trial=100, sigma=0.2):
+    th = rng.uniform(0.05, 2.0, n_trials * per_trial)
+    return th, np.exp(C1 + C2 * th + rng.normal(0, sigma, th.size)), np.repeat(np.arange(n_trials), per_trial)
+
+
+def _curves(rng, n_trials=10, per_trial=100):
+    """Insertion-like data: each trial a curve over θ_con with its own offset and AR(1) noise."""
+    th = np.tile(np.linspace(0.05, 2.0, per_trial), n_trials)
+    trial = np.repeat(np.arange(n_trials), per_trial)
+    e = np.empty(th.size)
+    for k in range(n_trials):
+        s = k * per_trial
+        e[s] = rng.normal(0, SIGMA_WITHIN)
+        innov = rng.normal(0, SIGMA_WITHIN * np.sqrt(1 - RHO ** 2), per_trial)
+        for i in range(1, per_trial):
+            e[s + i] = RHO * e[s + i - 1] + innov[i]
+    ln_f = C1 + C2 * th + rng.normal(0, SIGMA_TRIAL, n_trials)[trial] + e
+    return th, np.exp(ln_f), trial
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def test_recovers_c1_c2():
+    rng = np.random.default_rng(0)
+    th, f, trial = _iid(rng)
+    fit = fit_eq8(th, f, speed_mm_s=3.0, trial=trial)
+    assert fit.se_method == "cluster" and fit.n == 1000 and fit.n_trials == 10
+    assert abs(fit.c1 - C1) < 3 * fit.c1_se and abs(fit.c2 - C2) < 3 * fit.c2_se
+    assert fit.c1 == pytest.approx(C1, abs=0.05) and fit.c2 == pytest.approx(C2, abs=0.05)
+    assert fit.sigma_log == pytest.approx(0.2, rel=0.1)
+    assert fit.curve(1.0) == pytest.approx(np.exp(fit.c1 + fit.c2))
+
+
+def test_nonpositive_force_and_no_contact_are_excluded_and_counted():
+    rng = np.random.default_rng(1)
+    th, f, trial = _iid(rng, n_trials=3, per_trial=50)
+    th[:7] = 0.0  # before contact
+    f[10:14] = 0.0
+    f[20:23] = -0.5  # F <= 0 in contact
+    th[30] = np.nan  # angles missing
+    sat = np.zeros(th.size, bool)
+    sat[40:42] = True
+    fit = fit_eq8(th, f, speed_mm_s=1.0, trial=trial, saturated=sat)
+    assert (fit.n_no_contact, fit.n_excluded, fit.n_missing, fit.n_saturated) == (7, 7, 1, 2)
+    assert fit.n == th.size - 7 - 7 - 1 - 2
+    assert fit.se_method == "effective_n"  # 3 trials < min_clusters
+    with pytest.raises(InputError, match="usable sample"):
+        fit_eq8(th[:10], -np.ones(10), speed_mm_s=1.0)
+
+
+def test_bands_are_nested_and_back_transformed():
+    rng = np.random.default_rng(2)
+    th, f, trial = _curves(rng)
+    fit = fit_eq8(th, f, speed_mm_s=0.5, trial=trial)
+    b = bands(fit, np.linspace(0.1, 1.9, 7))
+    assert list(b.columns) == list(BANDS_COLUMNS)
+    assert (b["pi_lo_g"] < b["ci_lo_g"]).all() and (b["ci_lo_g"] < b["f_fit_g"]).all()
+    assert (b["f_fit_g"] < b["ci_hi_g"]).all() and (b["ci_hi_g"] < b["pi_hi_g"]).all()
+    # symmetric in log space
+    np.testing.assert_allclose(np.log(b["pi_hi_g"]) - np.log(b["f_fit_g"]), np.log(b["f_fit_g"]) - np.log(b["pi_lo_g"]))
+
+
+def _coverage(make, cfg, rng, reps=250, new=40):
+    pts = np.array([0.3, 1.0, 1.8])
+    truth = np.exp(C1 + C2 * pts)
+    ci, pi = [], []
+    for _ in range(reps):
+        th, f, trial = make(rng)
+        fit = fit_eq8(th, f, speed_mm_s=1.0, trial=trial, cfg=cfg)
+        b = bands(fit, pts)
+        ci.append(np.mean((b["ci_lo_g"] <= truth) & (truth <= b["ci_hi_g"])))
+        # new samples of new insertions: a fresh trial offset and within-trial noise each
+        th_new = rng.uniform(0.05, 2.0, new)
+        sd = 0.2 if make is _iid else np.hypot(SIGMA_TRIAL, SIGMA_WITHIN)
+        f_new = np.exp(C1 + C2 * th_new + rng.normal(0, sd, new))
+        bn = bands(fit, th_new)
+        pi.append(np.mean((bn["pi_lo_g"] <= f_new) & (f_new <= bn["pi_hi_g"])))
+    return float(np.mean(ci)), float(np.mean(pi))
+
+
+def test_band_coverage_independent_samples():
+    ci, pi = _coverage(_iid, BoundsConfig(), np.random.default_rng(3))
+    assert 0.92 <= ci <= 0.98
+    assert 0.92 <= pi <= 0.98
+
+
+def test_band_coverage_autocorrelated_curves():
+    """Samples along insertion curves: the default (cluster-robust) bands keep ~95 %,
+    plain OLS confidence bands do not (why OLS is not the default)."""
+    ci, pi = _coverage(_curves, BoundsConfig(), np.random.default_rng(4))
+    assert 0.90 <= ci <= 0.99
+    assert 0.92 <= pi <= 0.98
+    ci_ols, _ = _coverage(_curves, BoundsConfig(se="ols"), np.random.default_rng(4), reps=60)
+    assert ci_ols < 0.6
+
+
+def test_fit_bounds_by_speed_and_skips():
+    rng = np.random.default_rng(5)
+    parts = []
+    for v, c1 in ((0.5, -0.2), (3.0, -0.5)):
+        th, f, trial = _iid(rng, n_trials=6, per_trial=40)
+        parts.append(pd.DataFrame({"trial": [f"{v}_{k}" for k in trial], "speed_mm_s": v, "theta_con": th,
+                                   "force_g": f * np.exp(c1 - C1)}))
+    parts.append(pd.DataFrame({"trial": "z", "speed_mm_s": 7.5, "theta_con": [0.0, 0.0], "force_g": [1.0, 1.0]}))
+    fits, skipped = fit_bounds(pd.concat(parts, ignore_index=True))
+    assert [f.speed_mm_s for f in fits] == [0.5, 3.0]
+    assert fits[0].c1 == pytest.approx(-0.2, abs=0.06) and fits[1].c1 == pytest.approx(-0.5, abs=0.06)
+    assert skipped == [{"speed_mm_s": 7.5, "reason": "only 0 usable sample(s) (F > 0 and theta_con > 0); need 5"}]
+
+
+# --------------------------------------------------------------------------- files and figures
+
+
+def _synced(rng) -> pd.DataFrame:
+    parts = []
+    for v, c1 in ((0.5, -0.2), (3.0, -0.5), (7.5, -0.8)):
+        for k in range(5):
+            th = np.r_[np.zeros(20), np.linspace(0.02, 2.0, 150)]
+            f = np.exp(c1 + C2 * th + rng.normal(0, 0.1)) + rng.normal(0, 0.05, th.size)
+            parts.append(pd.DataFrame({"trial": f"v{v}_{k}", "speed_mm_s": v, "time_s": np.arange(th.size) * 0.1,
+                                       "force_g": f, "theta_tip": th + 1.4, "theta_bot": 1.4, "theta_con": th}))
+    return pd.concat(parts, ignore_index=True)
+
+
+def test_write_bounds_files(tmp_path):
+    synced = _synced(np.random.default_rng(6))
+    synced.to_csv(tmp_path / "synced.csv", index=False)
+    fits, skipped = fit_bounds(read_synced(tmp_path / "synced.csv"))
+    paths = write_bounds(fits, skipped, tmp_path / "out", input_path=tmp_path / "synced.csv")
+    record = json.loads(paths["json"].read_text())
+    assert [r["speed_mm_s"] for r in record["by_speed"]] == [0.5, 3.0, 7.5]
+    for r in record["by_speed"]:
+        assert {"speed_mm_s", "c1", "c2", "c1_se", "c2_se", "n", "n_excluded"} <= set(r)
+        assert r["n_no_contact"] == 100 and r["se_method"] == "cluster"
+    table = pd.read_csv(paths["bands"])
+    assert list(table.columns) == list(BANDS_COLUMNS) and len(table) == 3 * 101
+    assert paths["provenance"].exists()
+
+
+def test_figures_close_and_accept_a_simulation_callable(tmp_path):
+    from pipeline.figures import write_figures
+
+    synced = _synced(np.random.default_rng(7))
+    fits, _ = fit_bounds(synced)
+    calls = []
+
+    def simulate(speeds):
+        calls.append(list(speeds))
+        th = np.linspace(0, 2, 20)
+        return pd.DataFrame({"speed_mm_s": np.repeat(speeds, th.size), "theta_con": np.tile(th, len(speeds)),
+                             "force_g": np.tile(np.exp(C1 + C2 * th), len(speeds))})
+
+    before = plt.get_fignums()
+    paths = write_figures(synced, fits, tmp_path, simulated=simulate)
+    assert plt.get_fignums() == before  # nothing left open
+    assert calls == [[0.5, 3.0, 7.5]]
+    for p in paths:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def _run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_bounds_happy_path(tmp_path, capsys):
+    _synced(np.random.default_rng(8)).to_csv(tmp_path / "synced.csv", index=False)
+    code, out, err = _run(capsys, "bounds", tmp_path / "synced.csv", "--out", tmp_path / "b")
+    assert code == 0, err
+    assert "3 speed(s) fitted" in out and "Traceback" not in err
+    names = {p.name for p in (tmp_path / "b").iterdir()}
+    assert {"bounds.json", "bounds_bands.csv", "force_vs_theta_con.png", "log_force.png", "bounds.png"} <= names
+    record = json.loads((tmp_path / "b" / "bounds.json").read_text())
+    assert len(record["by_speed"]) == 3 and record["figures"]
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [
+        (None, "no such synced table"),
+        ("trial,speed_mm_s,force_g\nx,1,2\n", "missing column(s) theta_con"),
+        ("trial,speed_mm_s,force_g,theta_con\nx,1,abc,0.5\n", "synced.csv:2: force_g 'abc' is not a number"),
+        ("trial,speed_mm_s,force_g,theta_con\n" + "x,1,-1,0.5\n" * 10, "no speed could be fitted"),
+    ],
+)
+def test_cli_bounds_bad_input_one_line(tmp_path, capsys, content, fragment):
+    path = tmp_path / "synced.csv"
+    if content is not None:
+        path.write_text(content)
+    code, _, err = _run(capsys, "bounds", path, "--out", tmp_path / "b", "--no-figures")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err
+    assert lines[0].startswith("tympani: ") and fragment in lines[0]

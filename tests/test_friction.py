@@ -1,0 +1,331 @@
+"""The SPEC §4 force model: invariants, an explicit reference sum, scenarios, the TABLE II fit."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.friction import (
+    G_N,
+    RECONSTRUCTION,
+    SCENARIOS,
+    SIM_COLUMNS,
+    ContactGeometry,
+    FrictionParams,
+    LinearPressure,
+    PiecewisePressure,
+    contact_geometry,
+    fit_table,
+    flat_params,
+    insertion_force,
+    params_from_flat,
+    peak_force_change,
+    reconstructed_friction,
+    simulate,
+    speed_change_table,
+    stribeck,
+)
+from vision.geometry import DEFAULT_PHANTOM, entry_frame
+
+PARAMS = FrictionParams(
+    mu_s=0.18, mu_k=0.12, v_s_mm_s=1.5, delta_s=1.5, mu_v_s_per_mm=0.004, contact_width_mm=0.3,
+    p_tip_MPa=LinearPressure(0.012, 0.008), p_bot_MPa=LinearPressure(0.02, 0.015),
+)
+#: realistic contact arcs (rad): first contact 1.0-1.8, tip up to ~4 at 15 mm depth
+ARCS = [(1.4, 1.9), (1.2, 2.6), (1.6, 3.2), (1.9, 3.9), (2.15, 3.9), (1.0, 3.5), (1.7, 1.75)]
+
+
+def _random_arcs(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    bot = rng.uniform(1.0, 2.4, n)
+    tip = bot + rng.uniform(0.0, 1.6, n)
+    speed = rng.uniform(0.5, 7.5, n)
+    return bot, tip, speed
+
+
+# --------------------------------------------------------------------------- reference
+
+
+def _explicit_force(theta_bot: float, theta_tip: float, v: float, params: FrictionParams, m: int = 4000) -> float:
+    """Eqs. (2)-(7) element by element with explicit vectors (slow reference).
+
+    The arc is cut into ``m`` elements between wall points interpolated at equal steps of the
+    channel angle; each element's normal force points into the channel (away from the outward
+    normal, found from the element's side relative to the spiral centre), its friction opposes
+    the apical sliding.
+    """
+    wall = DEFAULT_PHANTOM.outer_wall
+    _, x_w, _ = entry_frame(DEFAULT_PHANTOM)
+    keep = np.concatenate([[True], np.diff(wall.theta) > 0])
+    th_w, pts_w = wall.theta[keep], wall.points[keep]
+    # include every wall vertex inside the arc so the polyline (and its corner cut) is followed
+    inner = th_w[(th_w > theta_bot) & (th_w < theta_tip)]
+    th = np.union1d(np.linspace(theta_bot, theta_tip, m + 1), inner)
+    pts = np.stack([np.interp(th, th_w, pts_w[:, 0]), np.interp(th, th_w, pts_w[:, 1])], axis=1)
+    seg_len = np.hypot(*np.diff(pts, axis=0).T)
+    l_con = seg_len.sum()
+    theta_con = theta_tip - theta_bot
+    p_tip = max(float(params.p_tip_MPa(theta_con)), 0.0)
+    p_bot = max(float(params.p_bot_MPa(theta_con)), 0.0)
+    mu = float(stribeck(v, params))
+    total = np.zeros(2)
+    s_from_tip = l_con
+    for i in range(len(seg_len)):
+        a, b = pts[i], pts[i + 1]
+        ds = seg_len[i]
+        if ds == 0:
+            continue
+        t = (b - a) / ds  # towards the apex
+        mid = 0.5 * (a + b)
+        s_mid = s_from_tip - 0.5 * ds
+        s_from_tip -= ds
+        normal = np.array([t[1], -t[0]])
+        if normal @ mid < 0:  # the outward normal has a positive radial component on a spiral wall
+            normal = -normal
+        p = p_tip + (s_mid / l_con) * (p_bot - p_tip)
+        n_i = -p * params.contact_width_mm * ds * normal  # on the array, towards the channel
+        f_i = -mu * np.linalg.norm(n_i) * t  # on the array, basal (opposes apical sliding)
+        total += n_i + f_i
+    f_ins = -total
+    return float(f_ins @ x_w) / G_N
+
+
+@pytest.mark.parametrize("bot, tip", ARCS)
+@pytest.mark.parametrize("v", [0.5, 7.5])
+def test_vectorised_matches_explicit_sum(bot, tip, v):
+    fast = float(insertion_force(bot, tip, v, PARAMS))
+    slow = _explicit_force(bot, tip, v, PARAMS)
+    assert fast == pytest.approx(slow, rel=1e-3)
+
+
+def test_axial_mode_matches_its_definition():
+    """friction_mode='axial': normal term plus mu * integral p b_c ds along x_w."""
+    bot, tip, v = 1.6, 3.4, 2.0
+    no_friction = replace(PARAMS, mu_s=0.0, mu_k=0.0, mu_v_s_per_mm=0.0)
+    normal_only = float(insertion_force(bot, tip, v, no_friction))
+    # integral of p over the arc from the explicit reference with x_w-free geometry: p_mean * b_c * l
+    wall_len = float(np.diff(contact_geometry().wall_s(np.array([bot, tip])))[0])
+    con = tip - bot
+    mean_p = 0.5 * (PARAMS.p_tip_MPa(con) + PARAMS.p_bot_MPa(con))
+    expected = normal_only + float(stribeck(v, PARAMS)) * mean_p * PARAMS.contact_width_mm * wall_len / G_N
+    assert float(insertion_force(bot, tip, v, PARAMS, friction_mode="axial")) == pytest.approx(expected, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- invariants
+
+
+def test_zero_contact_gives_zero_force():
+    theta = np.linspace(1.0, 4.0, 7)
+    assert np.all(insertion_force(theta, theta, 3.0, PARAMS) == 0.0)
+    # contact start beyond the tip is no contact either
+    assert np.all(insertion_force(theta + 0.1, theta, 3.0, PARAMS) == 0.0)
+    table = simulate("S4", [0.5, 7.5])
+    assert np.all(table.loc[table["theta_con"] == 0, "force_g"] == 0.0)
+
+
+def test_forces_are_positive_on_realistic_arcs():
+    """SPEC's signs give F > 0 (pushing in) on realistic arcs (see pipeline/friction.py)."""
+    bot, tip = np.meshgrid(np.linspace(1.0, 2.6, 60), np.linspace(1.0, 4.0, 90))
+    contact = tip > bot + 1e-9
+    laws = [
+        PARAMS,
+        replace(PARAMS, p_tip_MPa=LinearPressure(0.05), p_bot_MPa=LinearPressure(0.0)),
+        replace(PARAMS, p_tip_MPa=LinearPressure(0.0), p_bot_MPa=LinearPressure(0.05)),
+        replace(PARAMS, mu_s=0.5, mu_k=0.5, mu_v_s_per_mm=0.0, p_tip_MPa=LinearPressure(0.05), p_bot_MPa=LinearPressure(0.0)),
+    ]
+    for params in laws:
+        for v in (0.5, 7.5):
+            force = insertion_force(bot, tip, v, params)
+            assert np.all(force[contact] > 0), (params, v)
+    # the whole band 1.0 <= theta_bot < theta_tip <= 4.0 rad for mu up to 0.25
+    bot, tip = np.meshgrid(np.linspace(1.0, 4.0, 120), np.linspace(1.0, 4.0, 120))
+    contact = tip > bot + 1e-9
+    for params in laws[:3]:
+        params = replace(params, mu_s=0.25, mu_k=0.25)
+        assert np.all(insertion_force(bot, tip, 3.0, params)[contact] > 0)
+
+
+def test_force_grows_with_pressure_and_is_linear_in_width_times_pressure():
+    rng = np.random.default_rng(1)
+    bot, tip, v = _random_arcs(rng, 500)
+    contact = tip - bot > 0.05
+    base = insertion_force(bot, tip, v, PARAMS)
+    more_tip = insertion_force(bot, tip, v, replace(PARAMS, p_tip_MPa=LinearPressure(0.02, 0.008)))
+    more_bot = insertion_force(bot, tip, v, replace(PARAMS, p_bot_MPa=LinearPressure(0.03, 0.015)))
+    assert np.all(more_tip[contact] > base[contact]) and np.all(more_bot[contact] > base[contact])
+    doubled = replace(PARAMS, p_tip_MPa=LinearPressure(0.024, 0.016), p_bot_MPa=LinearPressure(0.04, 0.03))
+    np.testing.assert_allclose(insertion_force(bot, tip, v, doubled), 2 * base, rtol=1e-12)
+    # b_c x p is exactly degenerate: half the width and double the pressure is the same force
+    swapped = replace(doubled, contact_width_mm=PARAMS.contact_width_mm / 2)
+    np.testing.assert_allclose(insertion_force(bot, tip, v, swapped), base, rtol=1e-12)
+
+
+def test_equal_coefficients_and_no_viscosity_remove_speed_dependence():
+    rng = np.random.default_rng(2)
+    bot, tip, _ = _random_arcs(rng, 300)
+    coulomb = replace(PARAMS, mu_s=0.15, mu_k=0.15, mu_v_s_per_mm=0.0)
+    forces = [insertion_force(bot, tip, v, coulomb) for v in (0.0, 0.5, 3.0, 7.5, 50.0)]
+    for f in forces[1:]:
+        np.testing.assert_array_equal(f, forces[0])
+    # while the Stribeck parameters do make it depend on speed
+    assert not np.allclose(insertion_force(bot, tip, 0.5, PARAMS), insertion_force(bot, tip, 7.5, PARAMS))
+
+
+def test_stribeck_law():
+    p = FrictionParams(mu_s=0.18, mu_k=0.12, v_s_mm_s=2.0, delta_s=2.0, mu_v_s_per_mm=0.01)
+    assert float(stribeck(0.0, p)) == pytest.approx(0.18)
+    assert float(stribeck(2.0, p)) == pytest.approx(0.12 + 0.06 * np.exp(-1.0) + 0.02)
+    assert float(stribeck(1e3, p)) == pytest.approx(0.12 + 10.0)
+    assert float(stribeck(-2.0, p)) == float(stribeck(2.0, p))
+
+
+def test_retraction_reverses_friction():
+    """F(v) + F(-v) = 2 * (normal term): friction flips with the sliding direction."""
+    rng = np.random.default_rng(3)
+    bot, tip, v = _random_arcs(rng, 50)
+    no_friction = replace(PARAMS, mu_s=0.0, mu_k=0.0, mu_v_s_per_mm=0.0)
+    normal = insertion_force(bot, tip, v, no_friction)
+    np.testing.assert_allclose(insertion_force(bot, tip, v, PARAMS) + insertion_force(bot, tip, -v, PARAMS),
+                               2 * normal, rtol=1e-10, atol=1e-12)
+
+
+def _mirror(points: np.ndarray) -> np.ndarray:
+    return points * np.array([1.0, -1.0])
+
+
+def test_mirrored_phantom_frame_gives_the_same_force():
+    """The model lives in the phantom frame: reflecting the wall, the insertion axis and the
+    angles (a left cochlea seen as the mirror image of a right one) leaves F unchanged."""
+    wall = DEFAULT_PHANTOM.outer_wall
+    _, x_w, _ = entry_frame(DEFAULT_PHANTOM)
+    mirrored_points = _mirror(wall.points)
+    # reflected angles: measured clockwise in the mirrored frame, a point keeps its angle, so the
+    # wall keeps its angle labels (SPEC angles are a property of the channel, not of the view)
+    clockwise = -np.unwrap(np.arctan2(mirrored_points[:, 1], mirrored_points[:, 0]))
+    np.testing.assert_allclose(clockwise, np.unwrap(np.arctan2(wall.points[:, 1], wall.points[:, 0])), atol=1e-12)
+    mirrored = ContactGeometry.from_wall(mirrored_points, wall.theta, _mirror(x_w[None, :])[0])
+    # also an arbitrary rotation + reflection + translation of the whole frame
+    rot = np.array([[np.cos(0.7), -np.sin(0.7)], [np.sin(0.7), np.cos(0.7)]])
+    shift = np.array([3.0, -2.0])
+    moved = ContactGeometry.from_wall(_mirror(wall.points) @ rot.T + shift, wall.theta,
+                                      _mirror(x_w[None, :])[0] @ rot.T, centre=shift)
+    rng = np.random.default_rng(4)
+    bot, tip, v = _random_arcs(rng, 200)
+    ref = insertion_force(bot, tip, v, PARAMS)
+    np.testing.assert_allclose(insertion_force(bot, tip, v, PARAMS, mirrored), ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(insertion_force(bot, tip, v, PARAMS, moved), ref, rtol=1e-10, atol=1e-12)
+
+
+def test_broadcasting_and_nan():
+    f = insertion_force(np.array([[1.4], [1.6]]), np.array([2.0, 3.0, 3.5]), np.array([0.5, 3.0, 7.5]), PARAMS)
+    assert f.shape == (2, 3)
+    assert f[1, 2] == pytest.approx(float(insertion_force(1.6, 3.5, 7.5, PARAMS)), rel=1e-12)
+    assert np.isnan(insertion_force(np.nan, 3.0, 2.0, PARAMS))
+
+
+def test_pressure_laws():
+    line = LinearPressure(0.01, 0.02)
+    piecewise = PiecewisePressure((0.0, 1.0, 2.0), (0.01, 0.03, 0.05))
+    con = np.linspace(0, 2, 9)
+    np.testing.assert_allclose(piecewise(con), line(con))
+    a = insertion_force(1.5, 3.2, 1.0, replace(PARAMS, p_tip_MPa=line))
+    b = insertion_force(1.5, 3.2, 1.0, replace(PARAMS, p_tip_MPa=piecewise))
+    assert float(a) == pytest.approx(float(b), rel=1e-12)
+    with pytest.raises(ValueError):
+        PiecewisePressure((1.0, 0.5), (0.1, 0.2))
+
+
+def test_flat_parameters_round_trip():
+    flat = flat_params(PARAMS)
+    assert params_from_flat(flat) == PARAMS
+    assert params_from_flat({"mu_k": 0.2}, PARAMS).mu_k == 0.2
+    with pytest.raises(KeyError):
+        params_from_flat({"nonsense": 1.0})
+
+
+def test_ten_thousand_samples_are_fast():
+    rng = np.random.default_rng(5)
+    bot, tip, v = _random_arcs(rng, 10_000)
+    insertion_force(bot[:10], tip[:10], v[:10], PARAMS)  # geometry built once per phantom
+    runs = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        insertion_force(bot, tip, v, PARAMS)
+        runs.append(time.perf_counter() - t0)
+    best_ms = 1e3 * min(runs)
+    print(f"insertion_force: 10 000 samples in {best_ms:.1f} ms")
+    assert best_ms < 500  # loose: typically ~5-10 ms
+
+
+# --------------------------------------------------------------------------- scenarios
+
+
+def test_scenarios_are_marked_reconstructions_and_simulate_has_spec_columns():
+    assert set(SCENARIOS) == {"S1", "S2", "S3", "S4"}
+    assert "reconstruction" in str(RECONSTRUCTION["status"])
+    for name, sc in SCENARIOS.items():
+        assert "reconstruction" in sc.source
+        table = simulate(name, [0.5, 3.0, 7.5])
+        assert list(table.columns[: len(SIM_COLUMNS)]) == list(SIM_COLUMNS)
+        assert len(table) == 3 * len(sc.theta_tip)
+        np.testing.assert_allclose(table["theta_con"], table["theta_tip"] - table["theta_bot"])
+        assert (table["force_g"] >= 0).all() and table["force_g"].max() > 1.0
+        by_speed = table.pivot(index="step", columns="speed_mm_s", values="force_g")
+        if name == "S4":
+            assert not np.allclose(by_speed[0.5], by_speed[7.5])
+        else:
+            np.testing.assert_array_equal(by_speed[0.5], by_speed[7.5])
+
+
+def test_scenario_pressure_laws():
+    con = np.array([0.0, 1.0])
+    s1, s2, s3 = SCENARIOS["S1"], SCENARIOS["S2"], SCENARIOS["S3"]
+    assert np.ptp(s1.p_tip_MPa(con)) == 0 and np.all(s1.p_tip_MPa(con) == s1.p_bot_MPa(con))
+    assert np.ptp(s2.p_tip_MPa(con)) == 0 and np.diff(s2.p_bot_MPa(con))[0] > 0
+    assert np.diff(s3.p_tip_MPa(con))[0] > 0 and np.diff(s3.p_bot_MPa(con))[0] > 0
+    assert SCENARIOS["S4"].stribeck_law and not s3.stribeck_law
+    with pytest.raises(KeyError):
+        simulate("S9", [1.0])
+
+
+def test_peak_force_change_is_small():
+    """GUIDE §5: the model's speed effect is ~1-2 %, far from the experiments' -24 %/-43 %."""
+    table = speed_change_table(v_s_values=(0.3, 1.0, 3.0), delta_values=(1.0, 2.0))
+    print(table.to_string(index=False))
+    assert table["change_pct_vector"].abs().max() < 2.0
+    assert table["change_pct_axial"].abs().max() < 8.0
+    # with SPEC's vector sum, a falling mu *raises* the late-insertion peak (see friction.py)
+    assert peak_force_change("S4", 0.5, 7.5) > 0
+    assert peak_force_change("S4", 0.5, 7.5, friction_mode="axial") < 0
+    assert peak_force_change("S3", 0.5, 7.5) == 0.0
+
+
+# --------------------------------------------------------------------------- TABLE II fit
+
+
+def _table_ii_like(friction: FrictionParams, steps=(5, 10, 15, 20, 25)) -> pd.DataFrame:
+    parts = [simulate(name, [0.5, 3.0, 7.5], friction=friction) for name in SCENARIOS]
+    table = pd.concat(parts, ignore_index=True)
+    return table[table["step"].isin(steps)][["scenario", "speed_mm_s", "theta_con", "force_g"]].reset_index(drop=True)
+
+
+def test_fit_table_recovers_constants_and_static_coefficient():
+    truth = replace(reconstructed_friction(True), contact_width_mm=0.25, v_s_mm_s=2.0, delta_s=1.5)
+    table = _table_ii_like(truth)
+    rng = np.random.default_rng(6)
+    table["force_g"] *= 1 + 0.002 * rng.standard_normal(len(table))  # TABLE II's rounding-level noise
+    fit = fit_table(table, starts=4)
+    assert (fit.mu_s, fit.mu_k) == (0.18, 0.12)
+    assert fit.rss_by_assignment["mu_s>mu_k"] < fit.rss_by_assignment["mu_s<mu_k"]
+    for name, true in (("contact_width_mm", 0.25), ("v_s_mm_s", 2.0), ("delta_s", 1.5)):
+        value, se = fit.params[name]
+        assert abs(value - true) <= 3 * se + 1e-9, (name, value, se)
+    assert set(fit.residuals.columns) >= {"scenario", "speed_mm_s", "theta_con", "force_g", "model_g", "residual_g", "residual_pct"}
+    assert fit.residuals["residual_pct"].abs().max() < 1.0
+    # the swapped assignment is found when the truth has it
+    swapped = replace(truth, mu_s=0.12, mu_k=0.18)
+    fit2 = fit_table(_table_ii_like(swapped), starts=2)
+    assert (fit2.mu_s, fit2.mu_k) == (0.12, 0.18)
