@@ -216,6 +216,53 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- simulate, fit (pipeline/force_cli.py)
 
+def _float_list(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
+    if not values or any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: give one or more positive numbers")
+    return values
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT") from None
+    if w < 320 or h < 240:
+        raise argparse.ArgumentTypeError(f"{text!r}: frames must be at least 320x240")
+    return w, h
+
+
+def _configure_render(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--speeds", type=_float_list, default=(0.5, 1.5, 3.0, 5.0, 7.5), help="insertion speeds, mm/s")
+    p.add_argument("--trials", type=_positive_int, default=2, help="repeats per speed")
+    p.add_argument("--seed", type=int, default=0, help="seed of everything random")
+    p.add_argument("--depth", type=_positive_float, default=15.0, help="final insertion depth, mm")
+    p.add_argument("--fps", type=_positive_float, default=30.0, help="frame rate, 1/s")
+    p.add_argument("--max-frames", type=_positive_int, default=120,
+                   help="cap on frames per video (a longer insertion is filmed at a lower frame rate)")
+    p.add_argument("--size", type=_size, default=(640, 480), help="frame size WIDTHxHEIGHT, px")
+    p.add_argument("--nuisance", type=float, default=0.3, help="nuisance strength, 0 (clean) to 1 (heavy)")
+    p.add_argument("--png", action="store_true", help="write PNG folders instead of mp4 videos")
+
+
+def _run_render(args: argparse.Namespace) -> int:
+    from pipeline.experiment import ExperimentConfig, render_experiment
+
+    if not 0.0 <= args.nuisance <= 1.0:
+        raise UsageError(f"tympani render: --nuisance must be between 0 and 1, not {args.nuisance}")
+    cfg = ExperimentConfig(speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth, fps=args.fps,
+                           max_frames=args.max_frames, width=args.size[0], height=args.size[1],
+                           nuisance=args.nuisance, png=args.png)
+    manifest = render_experiment(args.out, cfg, seed=args.seed)
+    print(f"rendered {len(manifest)} trials to {args.out} (manifest.csv, videos/, force/, truth/)")
+    return 0
+
+
 from pipeline import force_cli as _force_cli  # noqa: E402  (cheap: argparse only; the model loads on run)
 from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: argparse only)
 
@@ -225,6 +272,13 @@ from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: 
 #: The subcommands, by name. Commands of SPEC §7 not listed here (render, sync, simulate, fit,
 #: bounds, diagnose, evaluate-diagnosis, run, demo) are added by their modules' authors.
 COMMANDS: dict[str, Command] = {
+    "render": Command(
+        "a synthetic experiment: videos, force logs, manifest, ground truth",
+        _configure_render,
+        _run_render,
+        "Render synthetic insertion videos (one camera set-up, --trials repeats per speed) with force logs from "
+        "the SPEC §4 model, a SPEC manifest and the exact per-frame truth (truth/<trial>.csv, truth/pose.json).",
+    ),
     "extract": Command(
         "angles tables (and registration JSON) per video",
         _configure_extract,

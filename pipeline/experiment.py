@@ -1,13 +1,18 @@
-"""Synthetic experiments: a set of rendered insertion videos with a manifest and exact truth.
+"""Synthetic experiments: rendered insertion videos and force logs with a manifest and truth.
 
 ``tympani render`` calls :func:`render_experiment`. One experiment is one camera set-up (one
 pose, one look) and several trials per insertion speed; trials differ in how the contact run
 grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is written::
 
-    OUT/manifest.csv           trial, speed_mm_s, video, fps, video_t0_s (SPEC §6)
+    OUT/manifest.csv           trial, speed_mm_s, video, force, fps, video_t0_s (SPEC §6)
     OUT/videos/<trial>.mp4     (or a PNG folder with --png)
+    OUT/force/<trial>.csv      force log: time_s, force_g, depth_mm on the sensor's clock
     OUT/truth/<trial>.csv      per frame: time_s, depth_mm, theta_tip, theta_bot, theta_con, ...
     OUT/truth/pose.json        the camera pose (SPEC registration keys) and the render settings
+
+The force is the SPEC §4 model (:mod:`pipeline.friction`, scenario S4 of the reconstruction)
+on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
+``video_t0_s`` on the force log's clock.
 """
 
 from __future__ import annotations
@@ -29,9 +34,35 @@ from vision.rendering import (
     render_video,
 )
 
+from .friction import SCENARIOS, FrictionParams, insertion_force
 from .io import atomic_write_csv, atomic_write_json
 
-__all__ = ["ExperimentConfig", "random_policy", "render_experiment"]
+__all__ = ["ExperimentConfig", "SensorConfig", "random_policy", "force_log_from_truth", "render_experiment"]
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The force sensor of a synthetic experiment.
+
+    Parameters
+    ----------
+    rate_hz : float
+        Sampling rate (1/s).
+    noise_g : float
+        Standard deviation of white sensor noise (g).
+    range_g : float
+        Full scale (g): the A/D covers ``[-range_g, range_g]``.
+    bits : int
+        A/D resolution.
+    lead_s : float
+        Time (s) logged before frame 0 of the video (``video_t0_s``).
+    """
+
+    rate_hz: float = 100.0
+    noise_g: float = 0.05
+    range_g: float = 50.0
+    bits: int = 13
+    lead_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -68,6 +99,7 @@ class ExperimentConfig:
     height: int = 480
     nuisance: float = 0.3
     png: bool = False
+    sensor: SensorConfig = SensorConfig()
 
 
 def random_policy(rng: np.random.Generator) -> ContactPolicy:
@@ -83,6 +115,48 @@ def random_policy(rng: np.random.Generator) -> ContactPolicy:
         approach_rad=float(rng.uniform(0.4, 0.8)),
         shape=shape,
     )
+
+
+def force_log_from_truth(
+    truth: pd.DataFrame,
+    speed_mm_s: float,
+    params: FrictionParams,
+    rng: np.random.Generator,
+    sensor: SensorConfig = SensorConfig(),
+) -> pd.DataFrame:
+    """A force log (SPEC §6) for one rendered trial.
+
+    Parameters
+    ----------
+    truth : pandas.DataFrame
+        The renderer's per-frame truth (``time_s`` on the video clock, ``depth_mm``, angles in rad).
+    speed_mm_s : float
+        Insertion speed (mm/s).
+    params : FrictionParams
+        Force-model parameters.
+    rng : numpy.random.Generator
+        Source of the noise.
+    sensor : SensorConfig
+        Sampling, noise and quantisation.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time_s`` (s, sensor clock; the video's frame 0 is at ``sensor.lead_s``), ``force_g``
+        and ``depth_mm``.
+    """
+    t_video_end = float(truth.time_s.iloc[-1])
+    t = np.arange(0.0, sensor.lead_s + t_video_end + 1e-9, 1.0 / sensor.rate_hz)
+    tv = t - sensor.lead_s
+    depth = np.interp(tv, truth.time_s, truth.depth_mm, left=float(truth.depth_mm.iloc[0]))
+    bot = np.interp(tv, truth.time_s, truth.theta_bot)
+    tip = np.interp(tv, truth.time_s, truth.theta_tip)
+    moving = np.gradient(depth) > 0
+    force = np.where(tip > bot, insertion_force(bot, tip, np.where(moving, speed_mm_s, 0.0), params), 0.0)
+    force = force + rng.normal(0.0, sensor.noise_g, len(t))
+    lsb = 2 * sensor.range_g / 2**sensor.bits
+    force = np.clip(np.round(force / lsb) * lsb, -sensor.range_g, sensor.range_g)
+    return pd.DataFrame(dict(time_s=np.round(t, 6), force_g=force, depth_mm=np.round(depth, 5)))
 
 
 def _trial_name(speed: float, k: int) -> str:
@@ -110,6 +184,7 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     rng = np.random.default_rng(seed)
     pose = random_pose(rng, cfg.width, cfg.height, px_per_mm=(20.0, 40.0))
     look = random_appearance(rng)
+    params = SCENARIOS["S4"].params()
     rows = []
     for speed in cfg.speeds_mm_s:
         for k in range(cfg.trials):
@@ -123,7 +198,11 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
             truth = render_video(out / name, spec, seed=int(rng.integers(2**31)))
             truth.insert(0, "trial", trial)
             atomic_write_csv(out / "truth" / f"{trial}.csv", truth)
-            rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), fps=spec.effective_fps(), video_t0_s=0.0))
+            log = force_log_from_truth(truth, speed, params, rng, cfg.sensor)
+            force_name = Path("force") / f"{trial}.csv"
+            atomic_write_csv(out / force_name, log)
+            rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), force=str(force_name),
+                             fps=spec.effective_fps(), video_t0_s=cfg.sensor.lead_s))
     manifest = pd.DataFrame(rows)
     atomic_write_csv(out / "manifest.csv", manifest)
     atomic_write_json(

@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pandas as pd
+from scipy.optimize import brentq
 
 from .angles import ContactAngles, contact_angles
 from .geometry import (
@@ -112,6 +113,28 @@ class ArrayState:
     truth: ContactAngles
 
 
+def _spiral_part(
+    theta_tip: float, theta_bot: float, shape: ArrayShape, phantom: Phantom, array: ElectrodeArray, step_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centreline (mm) of the array inside the spiral, tip first, and arc length (mm) from the tip."""
+    n = max(50, int((theta_tip - phantom.theta_start) * 8.0 / step_mm))
+    theta = np.linspace(theta_tip, phantom.theta_start, n)  # tip first
+    pts, _, normal = backbone_frame(theta, phantom)
+    half = 0.5 * channel_width(theta, phantom)
+    start_blend = _smoothstep((theta - phantom.theta_start) / shape.start_blend_rad)
+    depart = _smoothstep((theta_bot - theta) / shape.departure_rad)
+    radius = array.radius(np.zeros(n))
+    for _ in range(3):  # the radius depends on arc length, which depends on the offset
+        play = np.maximum(half - radius, 0.0)
+        e_far = shape.far_offset * 0.85 * play * start_blend
+        e_touch = e_far + shape.contact_level * (play - e_far)
+        e = e_touch + (e_far - e_touch) * depart
+        spiral = pts + e[:, None] * normal
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(spiral, axis=0).T))])
+        radius = array.radius(s)
+    return spiral, s
+
+
 def array_centreline(
     theta_tip: float,
     theta_bot: float,
@@ -154,23 +177,7 @@ def array_centreline(
         raise ValueError(f"theta_tip={theta_tip:.3f} rad is outside the channel")
     if theta_bot > theta_tip:
         raise ValueError("theta_bot must not exceed theta_tip")
-    r_tip = float(np.hypot(*backbone_frame(theta_tip, phantom)[0][0]))
-    n = max(50, int((theta_tip - phantom.theta_start) * 8.0 / step_mm))
-    theta = np.linspace(theta_tip, phantom.theta_start, n)  # tip first
-    pts, _, normal = backbone_frame(theta, phantom)
-    half = 0.5 * channel_width(theta, phantom)
-    start_blend = _smoothstep((theta - phantom.theta_start) / shape.start_blend_rad)
-    depart = _smoothstep((theta_bot - theta) / shape.departure_rad)
-    radius = array.radius(np.zeros(n))
-    for _ in range(3):  # the radius depends on arc length, which depends on the offset
-        play = np.maximum(half - radius, 0.0)
-        e_contact = play
-        e_far = shape.far_offset * 0.85 * play * start_blend
-        e_touch = e_far + shape.contact_level * (e_contact - e_far)
-        e = e_touch + (e_far - e_touch) * depart
-        spiral = pts + e[:, None] * normal
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(spiral, axis=0).T))])
-        radius = array.radius(s)
+    spiral, s = _spiral_part(theta_tip, theta_bot, shape, phantom, array, step_mm)
     depth = float(s[-1])
     origin, x_w, _ = entry_frame(phantom)
     rest = max(array.length_mm - depth, 0.0)
@@ -227,7 +234,6 @@ def pose_at_depth(
     *,
     phantom: Phantom = DEFAULT_PHANTOM,
     array: ElectrodeArray = DEFAULT_ARRAY,
-    tol_mm: float = 1e-3,
 ) -> ArrayState:
     """The array at insertion depth ``depth_mm`` (mm), its contact run following ``policy``.
 
@@ -237,20 +243,15 @@ def pose_at_depth(
         return _outside_pose(depth_mm, phantom, array)
     lo, hi = phantom.theta_start + 1e-4, phantom.theta_end - 1e-3
 
-    def state(theta_tip: float) -> ArrayState:
+    def excess(theta_tip: float) -> float:
         theta_bot, shape = policy.at(theta_tip)
-        return array_centreline(theta_tip, theta_bot, shape=shape, phantom=phantom, array=array)
+        return float(_spiral_part(theta_tip, theta_bot, shape, phantom, array, 0.02)[1][-1]) - depth_mm
 
-    if state(hi).depth_mm < depth_mm:
+    if excess(hi) < 0:
         raise ValueError(f"depth {depth_mm} mm is beyond the end of the channel")
-    best = state(lo)
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        best = state(mid)
-        if abs(best.depth_mm - depth_mm) < tol_mm:
-            break
-        lo, hi = (mid, hi) if best.depth_mm < depth_mm else (lo, mid)
-    return best
+    theta_tip = brentq(excess, lo, hi, xtol=1e-7) if excess(lo) < 0 else lo
+    theta_bot, shape = policy.at(theta_tip)
+    return array_centreline(theta_tip, theta_bot, shape=shape, phantom=phantom, array=array)
 
 
 def _outside_pose(depth_mm: float, phantom: Phantom, array: ElectrodeArray) -> ArrayState:
@@ -585,8 +586,12 @@ class Scene:
         img = self.background * (1 - body) + ap.array_level * body
         img = img * (1 - bands) + ap.band_level * bands
         if nu.distractors:
-            grip = self._coverage(self._gripper(state))
-            img = img * (1 - grip) + 50.0 * grip
+            jaw = self._gripper(state)[0]
+            x0, y0 = np.maximum(np.floor(jaw.min(axis=0)).astype(int) - 2, 0)
+            x1, y1 = np.minimum(np.ceil(jaw.max(axis=0)).astype(int) + 3, [self.width, self.height])
+            if x1 > x0 and y1 > y0:
+                grip = self._coverage([jaw], (x0, y0, x1, y1))
+                img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1 - grip) + 50.0 * grip
         gain = self.gain
         if nu.flicker > 0:
             gain = gain * float(1.0 + nu.flicker * self.rng.standard_normal())
@@ -594,7 +599,7 @@ class Scene:
         if nu.blur_sigma_px > 0:
             img = cv2.GaussianBlur(img, (0, 0), nu.blur_sigma_px)
         if nu.noise_sigma > 0:
-            img = img + self.rng.normal(0.0, nu.noise_sigma, img.shape).astype(np.float32)
+            img = img + nu.noise_sigma * self.rng.standard_normal(img.shape, dtype=np.float32)
         grey = np.clip(img, 0, 255)
         bgr = np.clip(grey[..., None] * np.asarray(ap.tint, np.float32), 0, 255).round().astype(np.uint8)
         if nu.jpeg_quality is not None:
