@@ -665,6 +665,16 @@ def _init_worker(cancel_event: Any) -> None:
     _CANCEL_EVENT = cancel_event
 
 
+def _pool_context():
+    """Start method of the worker processes: forkserver, not fork — a forked child of a process
+    whose OpenCV or BLAS threads hold locks (e.g. after rendering in the same process) can hang."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["numpy", "cv2", "pandas", "pipeline.batch"])
+    return ctx
+
+
 def _completed(futures: list) -> Iterator:
     """Futures in completion order when they are ``concurrent.futures`` ones, else in order
     (a Dask future's ``result()`` simply blocks)."""
@@ -753,10 +763,10 @@ def extract_batch(
             own = executor is None
             cancel = None
             if own:
-                import multiprocessing
-
-                cancel = multiprocessing.get_context().Event()
-                pool = cf.ProcessPoolExecutor(max_workers=int(workers), initializer=_init_worker, initargs=(cancel,))
+                ctx = _pool_context()
+                cancel = ctx.Event()
+                pool = cf.ProcessPoolExecutor(max_workers=int(workers), mp_context=ctx, initializer=_init_worker,
+                                              initargs=(cancel,))
             else:
                 pool = executor
             try:

@@ -248,18 +248,73 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=_size, default=(640, 480), help="frame size WIDTHxHEIGHT, px")
     p.add_argument("--nuisance", type=float, default=0.3, help="nuisance strength, 0 (clean) to 1 (heavy)")
     p.add_argument("--png", action="store_true", help="write PNG folders instead of mp4 videos")
+    hidden = p.add_argument_group("hidden effect (SPEC §5; written to truth/effect.json only)")
+    hidden.add_argument("--effect", default="none", metavar="NAME",
+                        help="none (default), hydrodynamic_lift, viscous_drag, capstan, sensor_lag, sensor_drift "
+                             "or pressure_profile")
+    hidden.add_argument("--strength", type=float, default=1.0, metavar="S",
+                        help="size of the effect: 0 absent, 1 typical (default 1)")
+    hidden.add_argument("--dwell", type=float, default=1.0, metavar="S",
+                        help="time logged (and filmed) after the robot stops, s (default 1)")
+    hidden.add_argument("--no-video", action="store_true",
+                        help="force logs and angles tables only (no videos; much faster); --fps is then the "
+                             "angles tables' frame rate")
+    hidden.add_argument("--rate", type=_positive_float, default=None, metavar="HZ",
+                        help="force sampling rate, 1/s (default 50 with --no-video, 100 with videos)")
 
 
 def _run_render(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from pipeline.experiment import ExperimentConfig, render_experiment
+    from pipeline.synthetic import hidden_effect_names
 
     if not 0.0 <= args.nuisance <= 1.0:
         raise UsageError(f"tympani render: --nuisance must be between 0 and 1, not {args.nuisance}")
+    names = hidden_effect_names()
+    effect = None if args.effect.lower() in ("none", "null") else args.effect
+    if effect is not None and effect not in names:
+        raise UsageError(f"tympani render: unknown --effect {args.effect!r}; choose from none, {', '.join(names)}")
+    if not (0.0 <= args.strength < float("inf")) or not (0.0 <= args.dwell < float("inf")):
+        raise UsageError("tympani render: --strength and --dwell must be non-negative numbers")
+    if args.no_video:
+        import numpy as np
+
+        from pipeline.synthetic import synthetic_dataset, write_experiment
+
+        synced, truth = synthetic_dataset(np.random.default_rng(args.seed), effect, strength=args.strength,
+                                          speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth,
+                                          rate_hz=args.rate or 50.0, dwell_s=args.dwell, angles_fps=args.fps)
+        manifest = write_experiment(args.out, synced, truth)
+        print(f"wrote {len(manifest)} trials to {args.out} (manifest.csv, angles/, force/, truth/); hidden effect "
+              f"{truth['effect'] or 'none'}, noiseless gap {truth['gap_rms_g']:.3g} g RMS vs noise {truth['noise_rms_g']:.3g} g")
+        return 0
     cfg = ExperimentConfig(speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth, fps=args.fps,
                            max_frames=args.max_frames, width=args.size[0], height=args.size[1],
-                           nuisance=args.nuisance, png=args.png)
+                           nuisance=args.nuisance, png=args.png, dwell_s=args.dwell, effect=effect,
+                           strength=args.strength)
+    if args.rate:
+        cfg = replace(cfg, sensor=replace(cfg.sensor, rate_hz=args.rate))
     manifest = render_experiment(args.out, cfg, seed=args.seed)
     print(f"rendered {len(manifest)} trials to {args.out} (manifest.csv, videos/, force/, truth/)")
+    return 0
+
+
+def _configure_demo(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic experiment")
+    p.add_argument("--workers", type=_positive_int, default=2, help="processes for the extraction")
+
+
+def _run_demo(args: argparse.Namespace) -> int:
+    from pipeline.demo import run_demo
+
+    result = run_demo(args.out, seed=args.seed, workers=args.workers, quiet=args.quiet)
+    err = result["errors"]
+    print("\nangles against the renderer's truth (|error|, rad):")
+    print(err.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    print(f"\npooled median |error|: theta_tip {err.tip_median.median():.4f} rad, "
+          f"theta_bot {err.bot_median.median():.4f} rad; outputs in {result['out']}/")
     return 0
 
 
@@ -272,12 +327,21 @@ from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: 
 #: The subcommands, by name. Commands of SPEC §7 not listed here (render, sync, simulate, fit,
 #: bounds, diagnose, evaluate-diagnosis, run, demo) are added by their modules' authors.
 COMMANDS: dict[str, Command] = {
+    "demo": Command(
+        "renders a small experiment and runs everything on it",
+        _configure_demo,
+        _run_demo,
+        "Render 3 speeds x 2 trials of synthetic insertion videos with force logs, then extract the angles, "
+        "compare them with the truth, sync, fit the friction model and fit the safety bounds.",
+    ),
     "render": Command(
         "a synthetic experiment: videos, force logs, manifest, ground truth",
         _configure_render,
         _run_render,
         "Render synthetic insertion videos (one camera set-up, --trials repeats per speed) with force logs from "
-        "the SPEC §4 model, a SPEC manifest and the exact per-frame truth (truth/<trial>.csv, truth/pose.json).",
+        "the SPEC §4 model, a SPEC manifest and the exact per-frame truth (truth/<trial>.csv, truth/pose.json). "
+        "--effect hides an unmodelled effect (SPEC §5, generated with forms unlike the diagnosis library's) in the "
+        "force logs and records it in truth/effect.json; --no-video writes angles tables instead of videos.",
     ),
     "extract": Command(
         "angles tables (and registration JSON) per video",

@@ -7,7 +7,6 @@ check the plumbing only, and stay valid whatever the real vision code does.
 from __future__ import annotations
 
 import concurrent.futures as cf
-import functools
 import json
 import math
 import multiprocessing as mp
@@ -285,8 +284,7 @@ def test_batch_with_process_pool_executor(tmp_path, fake_vision):
 
 def test_batch_with_workers_keyword(tmp_path, fake_vision, monkeypatch):
     # fork keeps the fakes in the workers whatever the platform's default start method
-    monkeypatch.setattr(batch.cf, "ProcessPoolExecutor",
-                        functools.partial(cf.ProcessPoolExecutor, mp_context=mp.get_context("fork")))
+    monkeypatch.setattr(batch, "_pool_context", lambda: mp.get_context("fork"))
     out = tmp_path / "out"
     _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, workers=2, progress=False), out)
 
