@@ -1,19 +1,51 @@
-"""The array's angles: theta_tip, theta_bot and theta_con (SPEC §3).
+"""The array's angles: theta_tip, theta_bot and theta_con (SPEC §3), and their measurement.
 
 :func:`contact_angles` applies the SPEC definitions to an array centreline given in the
 phantom frame. The renderer uses it to compute ground truth from the geometry it draws; the
 measurement uses it on the centreline it finds in a frame, so both answer the same question.
+
+Per frame (:func:`measure_frame`): greyscale frame + registration → straightened channel →
+the array's dark run, tip, edges and gap to the outer wall → :func:`contact_angles`. Build
+the straightened channel once per registration with :func:`prepare_measurement` and pass
+that plan in place of the registration::
+
+    plan = prepare_measurement(registration, frame.shape)
+    for frame in frames:
+        row = measure_frame(frame, plan).to_row()
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any, Protocol
 
+import cv2
 import numpy as np
+from scipy import ndimage
 
-from .geometry import Phantom, point_angle
+from .geometry import (
+    DEFAULT_ARRAY,
+    DEFAULT_PHANTOM,
+    CameraPose,
+    ElectrodeArray,
+    Phantom,
+    backbone_frame,
+    channel_width,
+    entry_frame,
+    point_angle,
+)
 
-__all__ = ["ContactAngles", "contact_angles", "outer_wall_gap"]
+__all__ = [
+    "ContactAngles",
+    "contact_angles",
+    "outer_wall_gap",
+    "MeasureConfig",
+    "FrameMeasurement",
+    "MeasurePlan",
+    "prepare_measurement",
+    "measure_frame",
+]
 
 
 @dataclass(frozen=True)
@@ -113,3 +145,1236 @@ def contact_angles(
     bot = centreline_mm[i_last] + frac * (centreline_mm[j] - centreline_mm[i_last])
     theta_bot = float(theta[i_last] + frac * (theta[j] - theta[i_last]))
     return ContactAngles(theta_tip, theta_bot, theta_tip - theta_bot, tip, bot)
+
+
+# =========================================================================== measurement
+#
+# How a frame is measured (see also measure_frame):
+#
+# The channel is registered once per video, so everything that depends only on the pose is
+# computed once (prepare_measurement): remap tables that *straighten* the channel into a
+# strip. Its *stations* run along the channel's backbone, one px apart, from the outer end of
+# the entry channel through theta_start to theta_end; its *offsets* run across the channel
+# at normalised lateral positions u (-1 the inner wall, +1 the outer wall), at most one px
+# apart. The strip is stored offsets x stations, so that reductions across the channel run
+# over its short first axis and OpenCV's filters see a wide image (both several times
+# faster than the other way round). Each frame then costs two cv2.remap calls and mostly
+# 1-D work along the channel:
+#
+# 1. survey, on a coarse strip (every 2nd offset and station) of the whole channel, using
+#    each station's darkest and brightest value in the channel's interior (clear of wall
+#    lines): the fluid level along the channel (a low percentile per 1.5 mm block, blocks
+#    where the array fills the channel interpolated; then again over stations whose
+#    brightest value is fluid); the array's level as a ratio to the fluid's, taken side by
+#    side where the array shows beside the fluid with a sharp edge (so uneven lighting
+#    cancels, and a channel merely dimmed by vignetting is not taken for an array); each
+#    station's darkness (0 fluid, 1 array); the array is the dark run that starts at the
+#    entry's outer end, bridging gaps up to 0.8 mm (metal bands as bright as the fluid);
+# 2. edges, on the fine strip of the stations that hold the array: at each station the
+#    array's inner and outer edge are the half-level crossings of its coverage either side
+#    of its darkest offset (sub-pixel, linear interpolation); the inner edge is then moved to
+#    the half level between the fluid and the array just beside it (median over the frame,
+#    local where the fluid shows clear of the wall), which removes the biases of the global
+#    levels (noise, compression, lighting);
+# 3. centre line: the inner edge faces the fluid wherever the array rides the outer wall,
+#    whereas the outer edge then merges with the wall (a dark wall line hides gaps narrower
+#    than half its width), so the centre line is the inner edge plus the array's known
+#    half-width at that distance from the tip (the outer edge minus it where the inner edge
+#    is lost), widened by the array's slant across the channel; in the rounded tip the
+#    half-width is the half disc's; stations at band borders, cut by a band's slanted border
+#    (edges too close together) or off their neighbours' median are dropped; the tip is the
+#    half-level crossing along the centre line, whose offset is extrapolated from the body;
+#    gap = half the channel width - centre offset - radius, smoothed with local straight-line
+#    fits (unbiased next to bands and the tip, where only one side has data) and carried
+#    across bands and the last of the tip cap;
+# 4. angles: contact_angles() on the measured centre line with the measured gaps, so the
+#    SPEC definitions are applied by the same code that computes the renderer's truth.
+
+
+class _HasPose(Protocol):
+    pose: CameraPose
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """Settings of the per-frame measurement (:func:`measure_frame`).
+
+    Parameters
+    ----------
+    contact_tol_mm : float
+        Largest gap (mm) between the array's outer edge and the outer wall that counts as
+        contact (SPEC §3).
+    station_step_px : float
+        Spacing (px) of the strip's stations along the channel's backbone.
+    offset_step_px : float
+        Largest spacing (px) of the strip's offsets across the channel (where it is widest).
+    coarse_stride : int
+        Every how many offsets and stations the coarse strip (used to find the array) keeps.
+    lateral_extent : float
+        The strip spans normalised lateral offsets ``u`` in ``[-lateral_extent,
+        lateral_extent]`` (``u = -1`` the inner wall, ``u = +1`` the outer wall).
+    wall_margin_px : float
+        Width (px) next to each wall left out of the channel's *interior*, so that wall lines
+        and their blur are not taken for the array or for the fluid.
+    min_interior : float
+        Smallest half-width of the interior, as a fraction of the channel's half-width.
+    fluid_window_mm : float
+        Length (mm) along the channel of the blocks whose percentile estimates the fluid level
+        (a median over three blocks follows).
+    fluid_percentile : float
+        Percentile (0–100) of the stations' brightest interior values taken as a first fluid
+        level (the second is the median over stations whose brightest value is fluid).
+    fluid_reach_mm : float
+        Distance (mm) along the channel over which a block's fluid level is compared with its
+        neighbours' (to find blocks where the array fills the channel).
+    fluid_floor : float
+        A block darker than this fraction of its brightest neighbour within ``fluid_reach_mm``
+        is taken to be filled by the array, and its fluid level interpolated.
+    probe_mm : float
+        Length (mm) of the outer end of the entry channel where the array must be seen.
+    beside_mm : float
+        Length (mm) of channel over which the array must be seen beside the fluid for a frame
+        to count as having an array in the channel.
+    dark_level : float
+        Darkness (0 fluid, 1 array) from which a station holds the array.
+    body_level : float
+        Darkness from which a station is array body whose edges are measured (stations below
+        are metal bands, band borders or noise).
+    border_px : int
+        Stations (px apart) either side of a band's border (or any non-body station) whose
+        edges are not used: blur and the smoothing along the channel mix the band into them.
+    edge_level : float
+        Coverage (0 fluid, 1 array) at which edges and the tip are located.
+    max_gap_mm : float
+        Longest stretch (mm) along the array that may look like fluid (a metal band as bright
+        as the fluid) without ending it.
+    min_contrast : float
+        Smallest fluid-minus-array difference (grey levels) of a usable frame.
+    gap_smooth_mm : float
+        Length (mm) along the channel of the local line fits that smooth centre offsets and
+        gaps (the slant is fitted over 2.5 times this).
+    outlier_px : float
+        Smallest deviation (px) of a station's centre offset from its neighbours' median that
+        drops the station.
+    plateau_px : tuple of float
+        Nearest and farthest distance (px) from the array's inner edge of the samples whose
+        coverage gives the local fluid and array levels the edge is relocated between.
+    tip_reach_mm : float
+        Farthest (mm) the centre line is extrapolated from the last measured station to the
+        tip; beyond, the tip's offset is the darkest offset of the last dark stations.
+    cap_min : float
+        Stations of the rounded tip closer to the tip than this fraction of its radius are not
+        used for edges (farther cap stations are, with the half disc's width).
+    angle_step_mm : float
+        Approximate spacing (mm) of the centre-line points handed to :func:`contact_angles`.
+    """
+
+    contact_tol_mm: float = 0.05
+    station_step_px: float = 1.0
+    offset_step_px: float = 1.0
+    coarse_stride: int = 2
+    lateral_extent: float = 1.1
+    wall_margin_px: float = 3.5
+    min_interior: float = 0.25
+    fluid_window_mm: float = 1.5
+    fluid_percentile: float = 25.0
+    fluid_reach_mm: float = 6.0
+    fluid_floor: float = 0.85
+    probe_mm: float = 1.5
+    beside_mm: float = 0.3
+    dark_level: float = 0.5
+    body_level: float = 0.8
+    border_px: int = 1
+    edge_level: float = 0.5
+    max_gap_mm: float = 0.8
+    min_contrast: float = 18.0
+    gap_smooth_mm: float = 0.4
+    outlier_px: float = 1.5
+    plateau_px: tuple[float, float] = (2.5, 4.0)
+    tip_reach_mm: float = 1.5
+    cap_min: float = 0.4
+    angle_step_mm: float = 0.1
+
+
+@dataclass(frozen=True)
+class FrameMeasurement:
+    """What :func:`measure_frame` found in one frame.
+
+    Parameters
+    ----------
+    ok : bool
+        Whether the angles were measured.
+    reason : str
+        Why not (``''`` when ``ok``).
+    theta_tip, theta_bot, theta_con : float
+        SPEC §3 angles (rad); NaN when not ``ok``.
+    tip_mm, bot_mm : ndarray, shape (2,), or None
+        Tip and contact start on the centre line (mm, phantom frame).
+    centreline_mm : ndarray, shape (n, 2), or None
+        Measured centre line (mm, phantom frame), tip first, down to ``theta_start`` (down to
+        the entry's outer end when the tip is in the entry channel).
+    outline_mm : ndarray, shape (m, 2), or None
+        Closed outline (mm, phantom frame) of that part of the array.
+    gap_mm : ndarray, shape (n,), or None
+        Measured gap (mm) between the array's outer edge and the outer wall at each
+        centre-line point.
+    extras : dict of str to float
+        Diagnostics: ``depth_mm`` (length of array past ``theta_start``, mm; negative when the
+        tip is in the entry channel), ``contrast`` (fluid minus array, grey levels),
+        ``edge_fraction`` (fraction of the array's stations whose edges were used),
+        ``time_ms`` (ms spent on the frame).
+    timings : dict of str to float
+        Seconds spent per stage (``survey``, ``edges``, ``centre_line``, ``angles``); not in
+        :meth:`to_row`.
+    """
+
+    ok: bool
+    reason: str = ""
+    theta_tip: float = float("nan")
+    theta_bot: float = float("nan")
+    theta_con: float = float("nan")
+    tip_mm: np.ndarray | None = None
+    bot_mm: np.ndarray | None = None
+    centreline_mm: np.ndarray | None = None
+    outline_mm: np.ndarray | None = None
+    gap_mm: np.ndarray | None = None
+    extras: dict[str, float] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_row(self) -> dict[str, Any]:
+        """Scalar columns for an angles table: the angles, ``ok``, ``reason`` and the extras."""
+        row: dict[str, Any] = dict(
+            theta_tip=self.theta_tip,
+            theta_bot=self.theta_bot,
+            theta_con=self.theta_con,
+            ok=bool(self.ok),
+            reason=self.reason,
+        )
+        row.update({key: float(value) for key, value in self.extras.items()})
+        return row
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurePlan:
+    """The straightened channel of one registration, built once and reused for every frame.
+
+    Build it with :func:`prepare_measurement`. It has a ``pose`` so that it can be passed to
+    :func:`measure_frame` in place of the registration. Strips are stored offsets × stations
+    (across × along the channel).
+
+    Parameters
+    ----------
+    pose : CameraPose
+        Phantom-to-image similarity the strip was built for.
+    image_shape : tuple of int
+        ``(height, width)`` (px) of the frames.
+    phantom, array, cfg : Phantom, ElectrodeArray, MeasureConfig
+        Geometry and settings the strip was built for.
+    map_x, map_y : ndarray, shape (offsets, stations), float32
+        Image coordinates (px) of the strip's samples, for ``cv2.remap``.
+    coarse_x, coarse_y : ndarray, shape (offsets_c, stations_c), float32
+        The same for every ``cfg.coarse_stride``-th offset and station.
+    coarse_penalty : ndarray, shape (offsets_c, stations_c), float32
+        0 on samples of the channel's interior, a large number elsewhere.
+    fine_penalty : ndarray, shape (offsets, stations), float32
+        The same for the full strip.
+    u : ndarray, shape (offsets,)
+        Normalised lateral offset of each strip offset (−1 inner wall, +1 outer wall).
+    p_mm : ndarray, shape (stations,)
+        Backbone arc length (mm) of each station from the outer end of the entry channel.
+    point_mm, normal : ndarray, shape (stations, 2)
+        Backbone point (mm, phantom frame) and outward unit normal of each station.
+    half_mm : ndarray, shape (stations,)
+        Half the channel's width (mm) at each station.
+    i_start : int
+        First station of the spiral (at or after ``theta_start``).
+    in_view : ndarray, shape (stations,), bool
+        Stations whose interior samples all lie inside the image.
+    """
+
+    pose: CameraPose
+    image_shape: tuple[int, int]
+    phantom: Phantom
+    array: ElectrodeArray
+    cfg: MeasureConfig
+    map_x: np.ndarray
+    map_y: np.ndarray
+    coarse_x: np.ndarray
+    coarse_y: np.ndarray
+    coarse_penalty: np.ndarray
+    fine_penalty: np.ndarray
+    u: np.ndarray
+    p_mm: np.ndarray
+    point_mm: np.ndarray
+    normal: np.ndarray
+    half_mm: np.ndarray
+    i_start: int
+    in_view: np.ndarray
+
+    @property
+    def step_mm(self) -> float:
+        """Spacing (mm) of the stations along the backbone."""
+        return float(self.p_mm[1] - self.p_mm[0])
+
+    def to_mm(self, station: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Phantom-frame points (mm) at fractional stations and normalised lateral offsets.
+
+        Parameters
+        ----------
+        station : ndarray, shape (n,)
+            Fractional station indices.
+        u : ndarray, shape (n,)
+            Normalised lateral offsets (−1 inner wall, +1 outer wall).
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+        """
+        station = np.clip(np.atleast_1d(np.asarray(station, dtype=float)), 0, len(self.p_mm) - 1)
+        i0 = np.minimum(station.astype(int), len(self.p_mm) - 2)
+        f = (station - i0)[:, None]
+        point = self.point_mm[i0] * (1 - f) + self.point_mm[i0 + 1] * f
+        normal = self.normal[i0] * (1 - f) + self.normal[i0 + 1] * f
+        normal /= np.hypot(normal[:, 0], normal[:, 1])[:, None]
+        half = self.half_mm[i0] * (1 - f[:, 0]) + self.half_mm[i0 + 1] * f[:, 0]
+        return point + (np.atleast_1d(np.asarray(u, dtype=float)) * half)[:, None] * normal
+
+
+def _channel_stations(
+    phantom: Phantom, step_mm: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Stations along the channel's backbone, ``step_mm`` (mm) apart, from the entry's outer end.
+
+    Parameters
+    ----------
+    phantom : Phantom
+        Phantom configuration.
+    step_mm : float
+        Station spacing (mm) along the backbone.
+
+    Returns
+    -------
+    p_mm, point_mm, normal, half_mm : ndarray
+        Arc length (mm), backbone point (mm), outward unit normal and half width (mm) per
+        station.
+    i_start : int
+        First spiral station.
+    """
+    theta = np.linspace(phantom.theta_start, phantom.theta_end, 40001)
+    pts, _, _ = backbone_frame(theta, phantom)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    entry = phantom.entry_length_mm
+    p = np.arange(0.0, entry + s[-1] - 0.5 * step_mm, step_mm)
+    spiral = p >= entry
+    th = np.interp(p[spiral] - entry, s, theta)
+    sp_pts, _, sp_nrm = backbone_frame(th, phantom)
+    origin, x_w, n_w = entry_frame(phantom)
+    back = entry - p[~spiral]
+    en_pts = origin[None, :] - back[:, None] * x_w[None, :]
+    en_nrm = np.repeat(n_w[None, :], len(back), axis=0)
+    half_start = 0.5 * float(channel_width(phantom.theta_start, phantom))
+    half = np.concatenate([np.full(len(back), half_start), 0.5 * channel_width(th, phantom)])
+    return p, np.vstack([en_pts, sp_pts]), np.vstack([en_nrm, sp_nrm]), half, int(np.argmax(spiral))
+
+
+def prepare_measurement(
+    registration: _HasPose | CameraPose,
+    image_shape: tuple[int, ...],
+    phantom: Phantom = DEFAULT_PHANTOM,
+    array: ElectrodeArray = DEFAULT_ARRAY,
+    cfg: MeasureConfig = MeasureConfig(),
+) -> MeasurePlan:
+    """Build the straightened-channel strip of one registration (once per video).
+
+    Stations run along the channel's backbone from the outer end of the entry channel through
+    ``theta_start`` to ``theta_end``, ``cfg.station_step_px`` apart; offsets run across it at
+    normalised lateral positions ``u`` (−1 inner wall, +1 outer wall), at most
+    ``cfg.offset_step_px`` apart.
+
+    Parameters
+    ----------
+    registration : object with ``.pose``, or CameraPose
+        The video's registration (phantom mm ↔ image px).
+    image_shape : tuple of int
+        Shape of the frames; the first two entries are (height, width) in px.
+    phantom, array : Phantom, ElectrodeArray
+        Geometry.
+    cfg : MeasureConfig
+        Settings.
+
+    Returns
+    -------
+    MeasurePlan
+    """
+    pose = registration if isinstance(registration, CameraPose) else registration.pose
+    ppm = float(pose.px_per_mm)
+    height, width = int(image_shape[0]), int(image_shape[1])
+    p, pts, nrm, half, i_start = _channel_stations(phantom, cfg.station_step_px / ppm)
+    stride = max(1, int(cfg.coarse_stride))
+    n_u = int(np.ceil(2 * cfg.lateral_extent * half.max() * ppm / cfg.offset_step_px / stride)) * stride + 1
+    u = np.linspace(-cfg.lateral_extent, cfg.lateral_extent, n_u)
+    xy = pts[None, :, :] + (u[:, None, None] * half[None, :, None]) * nrm[None, :, :]
+    img = pose.to_image(xy.reshape(-1, 2)).reshape(n_u, len(p), 2)
+    map_x = np.ascontiguousarray(img[..., 0], dtype=np.float32)
+    map_y = np.ascontiguousarray(img[..., 1], dtype=np.float32)
+    inside = (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+    limit = np.maximum(1.0 - cfg.wall_margin_px / (half * ppm), cfg.min_interior)
+    interior = np.abs(u)[:, None] <= limit[None, :]
+    penalty = np.where(interior, 0.0, 1e4).astype(np.float32)
+    return MeasurePlan(
+        pose=pose, image_shape=(height, width), phantom=phantom, array=array, cfg=cfg,
+        map_x=map_x, map_y=map_y,
+        coarse_x=np.ascontiguousarray(map_x[::stride, ::stride]),
+        coarse_y=np.ascontiguousarray(map_y[::stride, ::stride]),
+        coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride]), fine_penalty=penalty,
+        u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
+        in_view=np.all(inside | ~interior, axis=0),
+    )
+
+
+# --------------------------------------------------------------------------- per-frame steps
+
+
+def _to_gray(frame: np.ndarray) -> np.ndarray:
+    """A 2-D uint8 or float32 grey image (grey levels 0–255) from a grey, BGR or BGRA frame."""
+    a = np.asarray(frame)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[..., 0]
+    if a.ndim == 3 and a.shape[2] in (3, 4):
+        if a.dtype not in (np.uint8, np.float32):
+            a = a.astype(np.float32)
+        a = cv2.cvtColor(a, cv2.COLOR_BGRA2GRAY if a.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    if a.ndim != 2 or a.size == 0:
+        raise ValueError(f"a frame must be 2-D grey or BGR(A) colour, not shape {a.shape}")
+    if a.dtype not in (np.uint8, np.float32):
+        a = a.astype(np.float32)
+    return a
+
+
+def _odd(n: float) -> int:
+    """The smallest odd integer (at least 1) not below ``n``."""
+    k = max(1, int(np.ceil(n)))
+    return k if k % 2 == 1 else k + 1
+
+
+def _quantile(x: np.ndarray, q: float) -> float:
+    """The ``q``-quantile (0–1) of ``x`` by sorting (cheaper than ``np.percentile`` here)."""
+    xs = np.sort(x)
+    return float(xs[int(round(q * (len(xs) - 1)))])
+
+
+def _fluid_level(
+    brightest: np.ndarray, in_view: np.ndarray, block: int, percentile: float, reach: int, floor: float
+) -> np.ndarray:
+    """The fluid's grey level along the channel.
+
+    Parameters
+    ----------
+    brightest : ndarray, shape (n,)
+        Brightest interior value (grey levels) at each station.
+    in_view : ndarray, shape (n,), bool
+        Stations inside the image.
+    block : int
+        Length (stations) of the blocks whose percentile is taken.
+    percentile : float
+        Percentile (0–100).
+    reach : int
+        How many blocks either side a block is compared with.
+    floor : float
+        A block whose level is below this fraction of the brightest block level within
+        ``reach`` is taken to be filled by the array and replaced from its neighbours.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        A low percentile of ``brightest`` in consecutive blocks (blocks filled by the array
+        interpolated from the others), the median of each block and its two neighbours,
+        interpolated between block centres. It ignores the array where fluid shows beside it,
+        metal bands brighter than the fluid (a minority of any block) and stations out of view.
+    """
+    n = len(brightest)
+    good = np.flatnonzero(in_view)
+    if len(good) == 0:
+        return np.ones(n)
+    values = brightest if len(good) == n else np.interp(np.arange(n), good, brightest[good])
+    block = max(1, min(int(block), n))
+    n_blocks = n // block
+    blocks = values[: n_blocks * block].reshape(n_blocks, block)
+    q = int(round(percentile / 100.0 * (block - 1)))
+    level = np.partition(blocks, q, axis=1)[:, q]
+    centres = block * np.arange(n_blocks) + 0.5 * (block - 1)
+    envelope = ndimage.maximum_filter1d(level, size=2 * reach + 1, mode="nearest")
+    fluid_like = level >= floor * envelope
+    if not fluid_like.all() and fluid_like.any():
+        level = np.interp(centres, centres[fluid_like], level[fluid_like])
+    if n_blocks >= 3:
+        a, b, c = np.concatenate([level[:1], level[:-1]]), level, np.concatenate([level[1:], level[-1:]])
+        level = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))  # median of three
+    return np.maximum(np.interp(np.arange(n), centres, level), 1.0)
+
+
+def _array_ratio(
+    darkest: np.ndarray,
+    brightest: np.ndarray,
+    steepest: np.ndarray,
+    fluid: np.ndarray,
+    in_view: np.ndarray,
+    min_count: int,
+) -> float:
+    """The array's grey level as a fraction of the fluid's, or NaN where it is not seen.
+
+    Parameters
+    ----------
+    darkest, brightest : ndarray, shape (n,)
+        Darkest and brightest interior value (grey levels) at each station.
+    steepest : ndarray, shape (n,)
+        Largest change (grey levels) between neighbouring interior samples across the channel.
+    fluid : ndarray, shape (n,)
+        Estimated fluid level (grey levels) at each station.
+    in_view : ndarray, shape (n,), bool
+        Stations inside the image.
+    min_count : int
+        Fewest stations that must show both.
+
+    Returns
+    -------
+    float
+        A low quantile (0.3) of darkest / brightest over stations where the array shows
+        beside the fluid (brightest near the fluid level, darkest below 0.88 of it, an edge
+        steeper than 5 % of it between neighbouring samples, and so at the two stations either
+        side): a ratio taken side by side, so uneven lighting cancels;
+        stations only partly covered (band borders, the tip) raise it, hence not the median.
+        NaN when fewer than ``min_count`` stations show both: a dim channel (vignetting) is
+        not taken for an array filling it.
+    """
+    ratio = darkest / np.maximum(brightest, 1.0)
+    beside = in_view & (ratio < 0.88) & (np.abs(brightest / fluid - 1.0) < 0.15) & (steepest > 0.05 * brightest)
+    beside[2:-2] &= beside[:-4] & beside[1:-3] & beside[3:-1] & beside[4:]  # not at band borders
+    if beside.sum() < max(min_count, 3):
+        return float("nan")
+    return _quantile(ratio[beside], 0.3)
+
+
+def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
+    """``mask`` where it also holds at the ``reach`` stations on either side."""
+    out = mask.copy()
+    for k in range(1, reach + 1):
+        out[k:] &= mask[:-k]
+        out[:-k] &= mask[k:]
+        out[:k] = False
+        out[-k:] = False
+    return out
+
+
+def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
+    """Last station of the dark run that starts in the probe stations, bridging short gaps.
+
+    Parameters
+    ----------
+    dark : ndarray, shape (n,), bool
+        Stations that hold the array.
+    probe : ndarray, int
+        Stations (at the entry's outer end) where the run must start.
+    max_gap : float
+        Longest stretch (stations) of non-dark stations bridged.
+
+    Returns
+    -------
+    int
+        The run's last station, or −1 when no probe station is dark.
+    """
+    first = probe[dark[probe]]
+    if len(first) == 0:
+        return -1
+    idx = np.flatnonzero(dark[first[0] :]) + first[0]
+    breaks = np.flatnonzero(np.diff(idx) - 1 > max_gap)
+    return int(idx[breaks[0]] if len(breaks) else idx[-1])
+
+
+def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
+    """Where the coverage crosses ``level`` between offsets ``j`` and ``j + 1`` (linear).
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, n)
+        Coverage, offsets × stations.
+    j : ndarray, shape (k,), int
+        Offset just before each crossing (``cover`` is on either side of ``level`` at ``j``
+        and ``j + 1``).
+    cols : ndarray, shape (k,), int
+        Station of each crossing.
+    level : float
+        Crossing level.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        Fractional offset index.
+    """
+    c1, c2 = cover[j, cols], cover[j + 1, cols]
+    d = c2 - c1
+    t = (level - c1) / np.where(np.abs(d) < 1e-6, 1e-6, d)
+    return j + np.minimum(np.maximum(t, 0.0), 1.0)
+
+
+def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel offsets where coverage falls below ``level`` either side of ``seed``.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, n)
+        Array coverage (0 fluid, 1 array), offsets × stations.
+    seed : ndarray, shape (n,), int
+        An offset inside the array at each station.
+    level : float
+        Crossing level.
+
+    Returns
+    -------
+    low, high : ndarray, shape (n,)
+        Fractional offset index (see :func:`_crossing`) of the nearest crossing below and
+        above ``seed`` at each station; NaN where there is none.
+    """
+    m, n = cover.shape
+    j = np.arange(m, dtype=np.int16)[:, None]  # small integer types keep these passes fast
+    s = seed.astype(np.int16)
+    cols = np.arange(n)
+    below = cover < level
+    lo_idx = ((below & (j < s)) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1  # -1: none
+    hi_idx = m - ((below & (j > s)) * (np.int16(m) - j)).max(axis=0).astype(np.intp)  # m: none
+    low = np.full(n, np.nan)
+    ok = lo_idx >= 0
+    low[ok] = _crossing(cover, lo_idx[ok], cols[ok], level)
+    high = np.full(n, np.nan)
+    ok = hi_idx < m
+    high[ok] = _crossing(cover, hi_idx[ok] - 1, cols[ok], level)
+    return low, high
+
+
+def _window_line(sums: np.ndarray, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares lines from window sums (see :func:`_smooth_valid`): fit, slope, has-data."""
+    s0, s1, s2, t0, t1 = sums[0], sums[1], sums[2], sums[3 : 3 + k], sums[3 + k :]
+    have = s0 > 0.5
+    m0 = np.where(have, s0, 1.0)
+    mx, my = s1 / m0, t0 / m0
+    var = s2 / m0 - mx * mx
+    sloped = have & (s0 >= 3) & (var >= 2.0)
+    slope = np.where(sloped, (t1 / m0 - mx * my) / np.where(sloped, var, 1.0), 0.0)
+    return my + slope * (x - mx), slope, have
+
+
+def _sample(cover: np.ndarray, pos: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Coverage at fractional offset indices ``pos`` (shape (r, n), linear interpolation) of
+    stations ``cols`` (shape (n,))."""
+    m = cover.shape[0]
+    pos = np.minimum(np.maximum(pos, 0.0), m - 1.001)
+    j = pos.astype(np.intp)
+    f = pos - j
+    return cover[j, cols] * (1 - f) + cover[j + 1, cols] * f
+
+
+def _plateaus(
+    cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, px: np.ndarray, wall: np.ndarray,
+    plateau_px: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Coverage of the fluid and of the array either side of a rising edge at each station.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, k)
+        Coverage (0 fluid, 1 array), offsets × stations (``k >= len(edge)``).
+    edge : ndarray, shape (n,)
+        Fractional offset index of an edge where the coverage rises with the offset.
+    valid : ndarray, shape (n,), bool
+        Stations whose edge was measured.
+    px : ndarray, shape (n,)
+        Pixels per offset index at each station.
+    wall : ndarray, shape (n,)
+        Lowest offset index clear of the wall on the low side at each station.
+    plateau_px : tuple of float
+        Nearest and farthest distance (px) from the edge of the samples averaged.
+
+    Returns
+    -------
+    c_fluid, c_array : ndarray, shape (n,)
+        Mean coverage of three samples on the fluid side and on the array side.
+    fluid_ok, array_ok : ndarray, shape (n,), bool
+        Where they were measured (the fluid side clear of the wall; inside the strip).
+    """
+    m, n = cover.shape[0], len(edge)
+    cols = np.arange(n)
+    e = np.where(valid, edge, 0.0)
+    near, far = plateau_px
+    dist = np.array([near, 0.5 * (near + far), far])[:, None] / px[None, :]
+    both = _sample(cover, np.concatenate([e - dist, e + dist]), cols)
+    c_fluid, c_array = both[:3].mean(axis=0), both[3:].mean(axis=0)
+    return c_fluid, c_array, valid & (e - dist[2] >= wall), valid & (e + dist[2] <= m - 1)
+
+
+def _relevel(cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Move rising edges to where the coverage crosses a per-station level nearby.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, k)
+        Coverage, offsets × stations (``k >= len(edge)``).
+    edge : ndarray, shape (n,)
+        Fractional offset index of an edge where the coverage rises with the offset.
+    valid : ndarray, shape (n,), bool
+        Stations whose edge was measured.
+    level : ndarray, shape (n,)
+        Coverage at which each edge is to be located.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Each edge at the first rising crossing of ``level`` among the ten samples around it
+        (linear interpolation); unchanged where there is none.
+    """
+    m, n = cover.shape[0], len(edge)
+    cols = np.arange(n)
+    j0 = np.minimum(np.maximum(np.floor(np.where(valid, edge, 0.0)).astype(np.intp) - 4, 0), max(m - 10, 0))
+    window = cover[j0[None, :] + np.arange(min(10, m))[:, None], cols]
+    rising = (window[:-1] < level) & (window[1:] >= level)
+    k = rising.argmax(axis=0)
+    found = valid & rising.any(axis=0)
+    a, b = window[k, cols], window[k + 1, cols]
+    t = np.minimum(np.maximum((level - a) / np.where(np.abs(b - a) < 1e-6, 1e-6, b - a), 0.0), 1.0)
+    return np.where(found, j0 + k + t, edge)
+
+
+def _smooth_valid(
+    values: np.ndarray, valid: np.ndarray, size: int, slope_size: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Local straight-line smoothing of profiles measured only at some stations.
+
+    Parameters
+    ----------
+    values : ndarray, shape (k, n)
+        ``k`` profiles (any unit) along ``n`` stations; only ``valid`` stations are used.
+    valid : ndarray, shape (n,), bool
+        Stations where ``values`` were measured (at least one).
+    size : int
+        Window (stations) of the local fits.
+    slope_size : int, optional
+        Window (stations) of the fits that give the slopes (default ``size``).
+
+    Returns
+    -------
+    fit, slope : ndarray, shape (k, n)
+        At each station, the value (and, over ``slope_size``, the slope in unit per station)
+        of the least-squares line through the valid stations within the window (their mean,
+        slope 0, where they are too few or too bunched for a slope: fewer than 3, or spread
+        over fewer than about 5 stations); stations without any are interpolated linearly
+        between the nearest that have (held constant beyond the ends). Unlike a running mean,
+        a line is not biased by a trend at the ends of measured stretches (next to bands and
+        the tip).
+    """
+    k, n = values.shape
+    slope_size = size if slope_size is None else slope_size
+    big = max(size, slope_size) // 2
+    x = np.arange(n, dtype=float)
+    w = valid.astype(float)
+    wy = np.where(valid, values, 0.0)
+    stack = np.concatenate([w[None], (w * x)[None], (w * x * x)[None], wy, wy * x])
+    csum = np.zeros((len(stack), n + 2 * big + 1))  # cumulative sums, 0 before, held after
+    np.cumsum(stack, axis=1, out=csum[:, big + 1 : n + big + 1])
+    csum[:, n + big + 1 :] = csum[:, n + big : n + big + 1]
+
+    def sums(h: int) -> np.ndarray:  # over stations i-h .. i+h (clipped)
+        return csum[:, big + h + 1 : big + h + 1 + n] - csum[:, big - h : big - h + n]
+
+    fit, slope, have = _window_line(sums(size // 2), k, x)
+    if slope_size != size:
+        slope = _window_line(sums(slope_size // 2), k, x)[1]
+    if not have.all():
+        for row in fit:
+            row[~have] = np.interp(x[~have], x[have], row[have])
+    return fit, slope
+
+
+def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
+    """Valid stations whose residual from a smooth fit is not an outlier.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n,)
+        Deviation (any unit) of each station's value from a smooth fit.
+    valid : ndarray, shape (n,), bool
+        Stations where the values were measured.
+    tol : float
+        Smallest deviation (unit of ``residual``) counted as an outlier; the threshold is the
+        larger of ``tol`` and three robust standard deviations of the valid residuals.
+
+    Returns
+    -------
+    ndarray, shape (n,), bool
+    """
+    dev = np.abs(residual)
+    if valid.sum() < 3:
+        return valid
+    return valid & (dev <= max(tol, 3.0 * 1.4826 * _quantile(dev[valid], 0.5)))
+
+
+def _extrapolate(stations: np.ndarray, values: np.ndarray, at: float, span: float) -> float:
+    """Value at station ``at`` of a straight line fitted to the last ``span`` stations measured.
+
+    Parameters
+    ----------
+    stations : ndarray, shape (k,)
+        Stations (increasing) where ``values`` were measured.
+    values : ndarray, shape (k,)
+        Measured values (any unit).
+    at : float
+        Station (fractional) to evaluate the line at.
+    span : float
+        Length (stations) of the stretch fitted, ending at the last measured station.
+
+    Returns
+    -------
+    float
+        The line's value; the stretch's median when it holds fewer than 3 stations or spans
+        less than a third of ``span``.
+    """
+    sel = stations >= stations[-1] - span
+    r, v = stations[sel].astype(float), values[sel]
+    if len(r) < 3 or r[-1] - r[0] < span / 3:
+        return _quantile(v, 0.5)
+    rm, vm = r.mean(), v.mean()
+    return float(vm + np.dot(r - rm, v - vm) / np.dot(r - rm, r - rm) * (at - rm))
+
+
+def _tip_crossing(cover_at: np.ndarray, level: float, fallback: float) -> float:
+    """Fractional index where a coverage profile along the array last falls below ``level``.
+
+    Parameters
+    ----------
+    cover_at : ndarray, shape (k,)
+        Coverage (0 fluid, 1 array) along the channel at the array's centre line, basal first.
+    level : float
+        Crossing level.
+    fallback : float
+        Returned when the profile never falls below ``level``.
+
+    Returns
+    -------
+    float
+        Linear interpolation between the last station at or above ``level`` and the next.
+    """
+    above = cover_at >= level
+    falls = np.flatnonzero(above[:-1] & ~above[1:])
+    if len(falls) == 0:
+        return fallback
+    k = int(falls[-1])
+    a, b = cover_at[k], cover_at[k + 1]
+    return k + min(max(float((a - level) / max(a - b, 1e-6)), 0.0), 1.0)
+
+
+def _sample_offsets(block: np.ndarray, j: float, around: np.ndarray) -> np.ndarray:
+    """Mean over offsets ``j + around`` (fractional, interpolated) of each station of ``block``.
+
+    Parameters
+    ----------
+    block : ndarray, shape (m, k)
+        Strip (any unit), offsets × stations.
+    j : float
+        Fractional offset index.
+    around : ndarray
+        Offsets (in offset indices) averaged around ``j``.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+    """
+    m = block.shape[0]
+    pos = np.clip(j + around, 0, m - 1)
+    j0 = np.minimum(pos.astype(int), m - 2)
+    f = (pos - j0)[:, None]
+    return (block[j0] * (1 - f) + block[j0 + 1] * f).mean(axis=0)
+
+
+def _centre_offsets(
+    v_in: np.ndarray,
+    v_out: np.ndarray,
+    ok_in: np.ndarray,
+    ok_out: np.ndarray,
+    s: np.ndarray,
+    stretch: np.ndarray,
+    array: ElectrodeArray,
+    cap_min: float,
+    tol_mm: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The array's centre offset at each station from its edges and its known shape.
+
+    Parameters
+    ----------
+    v_in, v_out : ndarray, shape (n,)
+        Offsets (mm, along the backbone normal) of the inner and the outer edge.
+    ok_in, ok_out : ndarray, shape (n,), bool
+        Where each edge was seen on the array's body.
+    s : ndarray, shape (n,)
+        Distance (mm) of each station's centre-line point from the tip.
+    stretch : ndarray, shape (n,)
+        Width across the channel over the array's width (1 / cosine of its slant).
+    array : ElectrodeArray
+        The array (radius along its length; the tip is a half disc).
+    plateau_px : tuple of float
+        Nearest and farthest distance (px) from the array's inner edge of the samples whose
+        coverage gives the local fluid and array levels the edge is relocated between.
+    tip_reach_mm : float
+        Farthest (mm) the centre line is extrapolated from the last measured station to the
+        tip; beyond, the tip's offset is the darkest offset of the last dark stations.
+    cap_min : float
+        Stations closer to the tip than this fraction of the tip radius are not used.
+    tol_mm : float
+        How much narrower (mm) than expected the two edges may be before the station is
+        taken to be cut by a band's border (at least 30 % of the half-width is allowed).
+
+    Returns
+    -------
+    v_c : ndarray, shape (n,)
+        Centre offset (mm): the inner edge plus the visible half-width where the inner edge
+        was seen, else the outer edge minus it.
+    measured : ndarray, shape (n,), bool
+        Stations where ``v_c`` was measured.
+    radius : ndarray, shape (n,)
+        The array's radius (mm) at each station.
+    """
+    radius = array.radius(s)
+    r_tip = float(array.radius(0.0))
+    body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
+    visible = body_half * stretch
+    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - np.maximum(tol_mm, 0.3 * visible))
+    use_in = ok_in & ~cut
+    use_out = ok_out & ~ok_in & ~cut
+    v_c = np.where(use_in, v_in + visible, v_out - visible)
+    return v_c, (use_in | use_out) & (s >= cap_min * r_tip), radius
+
+
+def _distance_from_tip(line: np.ndarray, tip_mm: np.ndarray, stations: np.ndarray, tip: float) -> np.ndarray:
+    """Arc length (mm) from the tip along a centre line given basal station first.
+
+    Parameters
+    ----------
+    line : ndarray, shape (n, 2)
+        Centre-line point (mm) of each station, basal first.
+    tip_mm : ndarray, shape (2,)
+        The tip (mm), apical of the last station.
+    stations : ndarray, shape (n,)
+        Station indices.
+    tip : float
+        Fractional station of the tip; stations beyond it get 0.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    d = np.diff(line, axis=0)
+    seg = np.hypot(d[:, 0], d[:, 1])
+    s = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]]) + float(np.hypot(*(line[-1] - tip_mm)))
+    return np.where(stations > tip, 0.0, s)
+
+
+def _fail(reason: str, **extras: float) -> FrameMeasurement:
+    """A not-ok measurement with a reason."""
+    return FrameMeasurement(False, reason, extras={k: float(v) for k, v in extras.items()})
+
+
+@dataclass(frozen=True)
+class _Survey:
+    """Stage 1 (coarse strip of the whole channel), at every ``sa``-th station.
+
+    ``fluid_c`` fluid level (grey levels), ``rho`` array / fluid, ``contrast`` fluid − array
+    at the entry (grey levels), ``seed_c`` darkest offset (coarse index), ``tip_est`` the
+    dark run's last station (fine index).
+    """
+
+    fluid_c: np.ndarray
+    rho: float
+    contrast: float
+    seed_c: np.ndarray
+    tip_est: int
+
+
+def _survey(img: np.ndarray, plan: MeasurePlan) -> _Survey | FrameMeasurement:
+    """Find the array in the coarse strip: fluid and array levels, and where the array ends."""
+    cfg, step, sa = plan.cfg, plan.step_mm, max(1, int(plan.cfg.coarse_stride))
+    coarse = cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    coarse = cv2.blur(coarse.astype(np.float32, copy=False), (3, 3))
+    low = coarse + plan.coarse_penalty
+    seed_c = low.argmin(axis=0)
+    darkest = low[seed_c, np.arange(low.shape[1])]
+    brightest = cv2.reduce(coarse - plan.coarse_penalty, 0, cv2.REDUCE_MAX)[0]
+    pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
+    steepest = cv2.reduce(np.abs(coarse[1:] - coarse[:-1]) - pair_penalty, 0, cv2.REDUCE_MAX)[0]
+    view_c = plan.in_view[::sa]
+    probe = np.flatnonzero((plan.p_mm[::sa] <= cfg.probe_mm) & view_c)
+    if len(probe) == 0:
+        return _fail("entry out of view")
+    block = int(round(cfg.fluid_window_mm / (sa * step)))
+    reach = int(np.ceil(cfg.fluid_reach_mm / cfg.fluid_window_mm))
+    min_beside = int(np.ceil(cfg.beside_mm / (sa * step)))
+    fluid_c = _fluid_level(brightest, view_c, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
+    rho = _array_ratio(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    if not rho == rho:  # NaN: the array is nowhere seen beside the fluid
+        return _fail("array not in channel")
+    # second look, at stations whose brightest value is the fluid's: the array's body (not
+    # near a band, whose brightness may exceed the fluid's) and plain fluid
+    contrast_c = fluid_c * (1.0 - rho)
+    body = (fluid_c - darkest) / contrast_c >= cfg.body_level
+    trusted = view_c & (_erode(body, 2) | ((brightest - darkest) / contrast_c < 0.3))
+    fluid_c = _fluid_level(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
+    rho = _array_ratio(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    if not rho == rho:
+        return _fail("array not in channel")
+    contrast = _quantile(fluid_c[probe], 0.5) * (1.0 - rho)
+    if contrast < cfg.min_contrast:
+        return _fail("array not in channel", contrast=contrast)
+    dark = ((1.0 - darkest / fluid_c) / (1.0 - rho) >= cfg.dark_level) & view_c
+    tip_c = _array_run(dark, probe, cfg.max_gap_mm / (sa * step))
+    if tip_c < 0:
+        return _fail("array not in channel", contrast=contrast)
+    if not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
+        return _fail("tip out of view", contrast=contrast)
+    return _Survey(fluid_c, rho, contrast, seed_c, sa * tip_c)
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Stage 2: the fine strip from station ``lo`` on (the array holds ``lo .. lo + n - 1``).
+
+    ``fine`` the strip (grey levels), ``fluid`` and ``contrast`` per station (grey levels),
+    ``seed`` darkest offset, ``v_in``/``v_out`` edge offsets (mm) and ``ok_in``/``ok_out``
+    where they are the array body's, ``level`` the coverage half way between the fluid and
+    the array beside it.
+    """
+
+    lo: int
+    n: int
+    fine: np.ndarray
+    fluid: np.ndarray
+    contrast: np.ndarray
+    seed: np.ndarray
+    v_in: np.ndarray
+    v_out: np.ndarray
+    ok_in: np.ndarray
+    ok_out: np.ndarray
+    level: float
+
+
+def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
+    """The array's inner and outer edge at each station of the fine strip."""
+    cfg, step, ppm = plan.cfg, plan.step_mm, float(plan.pose.px_per_mm)
+    sa, n_all = max(1, int(cfg.coarse_stride)), len(plan.p_mm)
+    span = max(4, int(np.ceil(0.4 / step)))
+    lo = plan.i_start if sv.tip_est > plan.i_start + span else 0
+    hi = min(sv.tip_est + sa + span + 1, n_all)
+    fine = cv2.remap(img, plan.map_x[:, lo:hi], plan.map_y[:, lo:hi], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+    fluid = np.interp(np.arange(lo, hi), sa * np.arange(len(sv.fluid_c)), sv.fluid_c)
+    contrast = fluid * (1.0 - sv.rho)
+    cover = cv2.blur(fine, (3, 1)).astype(np.float32) * (-1.0 / contrast) + fluid / contrast
+    seed = np.minimum(sa * np.repeat(sv.seed_c, sa)[lo:hi], len(plan.u) - 1)
+    darkness = np.where(plan.in_view[lo:hi], cover[seed, np.arange(hi - lo)], 0.0)
+    dark = np.flatnonzero(darkness[: min(sv.tip_est + sa, hi - 1) - lo + 1] >= cfg.dark_level)
+    n = (int(dark[-1]) if len(dark) else sv.tip_est - lo) + 1
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    half = plan.half_mm[lo : lo + n]
+    px = du * half * ppm  # px per offset index at each station
+    wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
+    low, high = _half_crossings(cover[:, :n], seed[:n], cfg.edge_level)
+    body = _erode(darkness[:n] >= cfg.body_level, cfg.border_px)  # not the stations at a band's border
+    # the levels of the fluid and of the array beside the inner edge: the global estimates are
+    # off where the lighting is uneven, the array fills the entry, or noise biases the fluid
+    c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
+    c_f = _quantile(c_fluid[fluid_ok], 0.5) if fluid_ok.sum() >= 10 else 0.0
+    c_a = _quantile(c_array[array_ok], 0.5) if array_ok.sum() >= 10 else 1.0
+    if c_a - c_f < 0.3:  # implausible: keep the global levels
+        c_f, c_a = 0.0, 1.0
+    level = np.full(n, 0.5 * (c_f + c_a))
+    window = _odd(2.0 * cfg.gap_smooth_mm / step)
+    if fluid_ok.sum() >= 3:  # where the fluid shows clear of the wall, the local levels
+        (lf, la), _ = _smooth_valid(np.stack([c_fluid, c_array]), fluid_ok, window)
+        near = ndimage.uniform_filter1d(fluid_ok.astype(float), window) > 0
+        level = np.where(near, 0.5 * (lf + la), level)
+    low = _relevel(cover, low, np.isfinite(low), level)
+    body = _erode((darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
+    v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
+    return _Edges(lo, n, fine, fluid, contrast, seed, v_in, v_out, body & (v_in >= -half),
+                  body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
+
+
+@dataclass(frozen=True)
+class _CentreLine:
+    """Stage 3: the tip (fractional station ``tip_f`` from ``lo``, point ``tip_mm``), and per
+    station the centre-line point ``line`` (mm), the gap (mm), the radius (mm) and whether
+    the edges were used (``measured``)."""
+
+    tip_f: float
+    tip_mm: np.ndarray
+    line: np.ndarray
+    gap: np.ndarray
+    radius: np.ndarray
+    measured: np.ndarray
+
+
+def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
+    """The array's centre line, its tip and its gap to the outer wall (None without edges, or
+    where the edges seen on both sides do not have the array's width)."""
+    cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
+    lo, n = e.lo, e.n
+    stations = np.arange(n)
+    point, normal, half = plan.point_mm[lo : lo + n], plan.normal[lo : lo + n], plan.half_mm[lo : lo + n]
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    k_smooth = _odd(cfg.gap_smooth_mm / step)
+    tol = cfg.outlier_px / ppm
+    span = max(4, int(np.ceil(0.4 / step)))
+    # pass 1: distance from the tip along the backbone, array parallel to the channel
+    s = plan.p_mm[lo + n - 1] - plan.p_mm[lo : lo + n]
+    v_c, measured, _ = _centre_offsets(e.v_in, e.v_out, e.ok_in, e.ok_out, s, np.ones(n), array, cfg.cap_min, tol)
+    idx = np.flatnonzero(measured)
+    if len(idx) < 3:
+        return None
+    med = np.zeros(n)
+    med[idx] = ndimage.median_filter(v_c[idx], size=k_smooth, mode="nearest")
+    measured = _inliers(v_c - med, measured, tol)
+    fit, slant = _smooth_valid(v_c[None, :], measured, _odd(2.5 * cfg.gap_smooth_mm / step))
+    centre, stretch = fit[0], np.sqrt(1.0 + (slant[0] / step) ** 2)
+    # the tip: the half-level crossing along the centre line, extrapolated from the body
+    last = int(np.flatnonzero(measured)[-1])
+    if (n - 1 - last) * step <= cfg.tip_reach_mm:
+        tip_v = _extrapolate(stations[measured], v_c[measured], float(n - 1), 1.0 / step)
+    else:  # no body seen near the tip: the darkest offset of the last dark stations
+        tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * float(half[-1])
+    tip_u = min(max(tip_v / float(half[-1]), -1.0), 1.0)
+    k0 = max(n - 1 - span, 0)
+    along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (tip_u - u0) / du, np.array([-1.0, 0.0, 1.0]))
+    tip_f = k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0))
+    tip_mm = plan.to_mm(np.array([lo + tip_f]), np.array([tip_u]))[0]
+    # pass 2: distance along the measured centre line, slant across the channel -> gaps
+    s = _distance_from_tip(point + centre[:, None] * normal, tip_mm, stations, tip_f)
+    v_c, measured2, radius = _centre_offsets(e.v_in, e.v_out, e.ok_in, e.ok_out, s, stretch, array, cfg.cap_min, tol)
+    measured &= measured2 & (stations <= tip_f)
+    if measured.sum() < 3:
+        return None
+    # where both edges show, the array must be about as wide as it is (noise is not)
+    both = e.ok_in & e.ok_out & (stations <= tip_f) & (s >= array.radius(0.0))
+    if both.sum() >= 10:
+        width = 2.0 * radius * stretch
+        fits = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
+        if fits[both].mean() < 0.5:
+            return None
+    centre, gap = _smooth_valid(np.stack([v_c, half - v_c - radius * stretch]), measured, k_smooth)[0]
+    return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured)
+
+
+def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
+    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
+    cfg, lo = plan.cfg, e.lo
+    stations = np.arange(e.n)
+    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(cfg.angle_step_mm / plan.step_mm)))]
+    centreline = np.vstack([c.tip_mm[None, :], c.line[keep]])
+    gaps = np.concatenate([c.gap[keep[:1]] if len(keep) else c.gap[-1:], c.gap[keep]])
+    radii = np.concatenate([[float(plan.array.radius(0.0))], c.radius[keep]])
+    if lo + c.tip_f < plan.i_start:  # tip in the entry channel: theta = phi (SPEC §2), no contact
+        theta_tip = float(point_angle(c.tip_mm[None, :], plan.phantom)[0])
+        angles = ContactAngles(theta_tip, theta_tip, 0.0, c.tip_mm, c.tip_mm)
+        extras["depth_mm"] = -float(plan.p_mm[plan.i_start] - plan.p_mm[lo] - c.tip_f * plan.step_mm)
+    else:
+        angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps)
+        d = np.diff(centreline, axis=0)
+        extras["depth_mm"] = float(np.hypot(d[:, 0], d[:, 1]).sum())
+    side = radii[1:, None] * plan.normal[lo + keep]
+    outline = np.vstack([c.tip_mm[None, :], centreline[1:] - side, (centreline[1:] + side)[::-1]])
+    return FrameMeasurement(
+        True, "", angles.theta_tip, angles.theta_bot, angles.theta_con, angles.tip_mm, angles.bot_mm,
+        centreline, outline, gaps, extras,
+    )
+
+
+def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
+    """The measurement proper (see the notes above :class:`MeasureConfig`), with stage timings."""
+    if img.shape[:2] != plan.image_shape:
+        raise ValueError(f"frame shape {img.shape[:2]} does not match the plan's {plan.image_shape}")
+    t0 = time.perf_counter()
+    sv = _survey(img, plan)
+    t1 = time.perf_counter()
+    timings = {"survey": t1 - t0}
+    if isinstance(sv, FrameMeasurement):
+        return replace(sv, timings=timings)
+    e = _edges(img, plan, sv)
+    t2 = time.perf_counter()
+    c = _centre_line(plan, e)
+    t3 = time.perf_counter()
+    timings.update(edges=t2 - t1, centre_line=t3 - t2)
+    if c is None:
+        return replace(_fail("array edges not found", contrast=sv.contrast), timings=timings)
+    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.mean())))
+    timings["angles"] = time.perf_counter() - t3
+    return replace(result, timings=timings)
+
+
+def measure_frame(
+    gray: np.ndarray,
+    registration: _HasPose | MeasurePlan,
+    phantom: Phantom = DEFAULT_PHANTOM,
+    array: ElectrodeArray = DEFAULT_ARRAY,
+    cfg: MeasureConfig = MeasureConfig(),
+) -> FrameMeasurement:
+    """Measure theta_tip, theta_bot and theta_con (SPEC §3) in one frame.
+
+    Parameters
+    ----------
+    gray : ndarray
+        The frame: 2-D grey (uint8, or float in grey levels 0–255) or BGR/BGRA colour.
+    registration : object with ``.pose`` (CameraPose), or MeasurePlan
+        The video's registration. Pass the :class:`MeasurePlan` of :func:`prepare_measurement`
+        to reuse the straightened channel across frames (the fast path); given a registration,
+        the strip is built for this frame alone (10–100 ms).
+    phantom, array : Phantom, ElectrodeArray
+        Geometry (a plan's own are used when a plan is passed).
+    cfg : MeasureConfig
+        Settings (a plan's own are used when a plan is passed).
+
+    Returns
+    -------
+    FrameMeasurement
+        Never raises on a bad frame: one that cannot be measured gives ``ok=False`` with a
+        ``reason``: ``"array not in channel"`` (no array at the entry's outer end: not
+        inserted yet, absent, hidden, or too faint), ``"tip out of view"``, ``"entry out of
+        view"``, ``"array edges not found"``, ``"bad frame: ..."`` or ``"measurement failed:
+        ..."``. ``extras['time_ms']`` is the time spent on the frame (ms), without the strip's
+        preparation when a plan is passed; ``timings`` splits it by stage (s).
+
+    Raises
+    ------
+    AttributeError
+        ``registration`` is neither a plan nor has a ``pose`` (a programming error, not a bad
+        frame).
+
+    Notes
+    -----
+    A tip in the entry channel (behind ``theta_start``) gives ``ok=True``: SPEC §2 gives such
+    points ``theta = phi`` (k = 0), so theta_tip is defined there (and below
+    ``theta_start``); contact counts against the spiral's outer wall only, so then
+    ``theta_bot = theta_tip`` and ``theta_con = 0``.
+    """
+    t0 = time.perf_counter()
+    try:
+        img = _to_gray(gray)
+    except (ValueError, TypeError, cv2.error) as exc:
+        return _fail(f"bad frame: {exc}")
+    plan = registration
+    if isinstance(plan, MeasurePlan) and plan.image_shape != img.shape[:2]:
+        plan = prepare_measurement(plan.pose, img.shape, plan.phantom, plan.array, plan.cfg)
+        t0 = time.perf_counter()
+    elif not isinstance(plan, MeasurePlan):
+        plan = prepare_measurement(registration, img.shape, phantom, array, cfg)
+        t0 = time.perf_counter()
+    try:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            result = _measure(img, plan)
+    except (ValueError, IndexError, FloatingPointError, cv2.error) as exc:
+        result = _fail(f"measurement failed: {type(exc).__name__}: {exc}")
+    result.extras["time_ms"] = 1e3 * (time.perf_counter() - t0)
+    return result

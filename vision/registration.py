@@ -1,0 +1,1189 @@
+"""Registration: where the phantom is in the image (SPEC §2 "What a frame shows").
+
+The camera looks straight down, so phantom and image differ by a similarity: centre,
+rotation, scale and possibly a mirror (:class:`vision.geometry.CameraPose`). :func:`register`
+finds it from the channel walls alone, with no initial guess, assuming only that the walls
+show as intensity edges (thin lines, region boundaries or both):
+
+1. **Edges** (:mod:`vision.edges`): the frames are merged (per-pixel median), Canny runs
+   with thresholds and smoothing set from the image's own noise, short specks are dropped,
+   and each edge pixel is refined to sub-pixel precision. Two fields are splatted from the
+   edge points: the *doubled-angle orientation* ``exp(2i·alpha)``, in which the two Canny
+   edges of a thin line agree and randomly oriented noise and clutter cancel when averaged,
+   and the signed gradient direction, which keeps the edges' polarity.
+2. **Global search** on the doubled-angle field shrunk, for each candidate scale (10 %
+   steps), so the phantom would appear at ``coarse_px_per_mm``: the wall template averaged
+   over all rotations (a rotation-invariant ring detector, anchored on the spiral centre)
+   proposes centres by correlation; at each proposal the templates of every rotation (128)
+   and both mirrors are scored by one matrix product. This covers any rotation, both
+   mirrors, the whole scale range and centres anywhere, including a channel partly out of
+   frame.
+3. **Refinement** of the best proposals down an image pyramid. Each wall point samples the
+   field along its normal and takes the Gaussian-weighted mean offset of the edges that
+   share its orientation (a 1-D mean shift); a weighted Gauss–Newton step moves the
+   similarity. The last pass at full resolution is polarity-aware: edges whose gradient
+   points out of the channel are fitted at ``+h`` and those pointing in at ``-h``, ``h``
+   (the half width of the wall lines) being estimated with the pose. This centres thin
+   lines even when only one of their sides shows, handles region boundaries (``h = 0``),
+   and keeps the walls of neighbouring turns (0.24 mm apart, edges facing the other way)
+   from pulling on each other.
+4. **Verification**: along each wall normal, the distance from where the wall's edge is
+   expected to the nearest Canny edge of matching orientation. Too few inliers, too little
+   of the channel in view or too large a residual mean no phantom: :class:`RegistrationError`
+   says which.
+
+Why the entry matters: beyond 100° the backbone is a logarithmic spiral with a width that
+grows with the radius, so a rotation about the centre is nearly the same as a 7.5 %/rad
+change of scale there. The entry channel and the first half-turn break that symmetry; the
+search and the residual (the largest of per-part medians) both rely on them.
+
+:func:`check` recomputes the residual on a new frame in a few ms, so a batch can notice a
+bumped camera and register again.
+
+Units: image lengths in px (pixel centres at integer coordinates, x along columns, y along
+rows), phantom lengths in mm, angles in rad unless a name says ``_deg``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from .edges import (
+    EdgeMap,
+    as_float_gray,
+    auto_sigma,
+    detect_edges,
+    orientation_field,
+    subpixel_edges,
+    to_gray,
+)
+from .geometry import DEFAULT_PHANTOM, CameraPose, Phantom, backbone_frame, entry_frame, entry_walls
+
+__all__ = [
+    "RegistrationConfig",
+    "Registration",
+    "RegistrationError",
+    "WallModel",
+    "wall_model",
+    "combine_frames",
+    "register",
+    "check",
+    "wall_fit",
+    "WallFit",
+]
+
+
+# --------------------------------------------------------------------------- config, results
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Search ranges and tolerances of :func:`register`.
+
+    Parameters
+    ----------
+    px_per_mm_range : tuple of float
+        Smallest and largest scale (px/mm) searched.
+    coarse_px_per_mm : float
+        Working resolution (px/mm of the phantom) of the global search.
+    coarse_scale_step : float
+        Relative step between the scales of the global search (0.1 = 10 %).
+    coarse_rotations : int
+        Number of rotations of the global search (per mirror), evenly spaced over 2π.
+    coarse_peaks_per_scale : int
+        Centres proposed by the rotation-invariant detector at each scale.
+    n_candidates : int
+        Proposals of the global search that are refined to half resolution.
+    n_fine : int
+        Best of those that are refined at full resolution.
+    edge_sigma_px : float or None
+        Gaussian smoothing (px) before Canny; ``None`` chooses it from the image's noise
+        (:func:`vision.edges.auto_sigma`).
+    min_segment_px : int
+        Edge segments shorter than this (px) are dropped as specks.
+    refine_sigma_px : float
+        Kernel (px, full resolution) of the first, polarity-blind full-resolution pass.
+    final_sigma_px : float
+        Kernel (px) of the last, polarity-aware pass; small enough that the walls of
+        neighbouring turns (0.24 mm apart) stay out of each other's window.
+    max_line_half_width_px : float
+        Largest half width (px) of a wall drawn as a line (its two edges lie this far from the
+        wall on either side).
+    model_spacing_px : float
+        Spacing (px) of the wall points used in refinement and verification.
+    inlier_tol_px : float
+        A wall point is an inlier when an edge of matching orientation and polarity lies
+        within this distance (px, along its normal) of where the fit expects it.
+    min_inlier_fraction : float
+        Least fraction of the visible wall points that must be inliers.
+    min_visible_fraction : float
+        Least fraction of the model's wall length that must be inside the frame.
+    max_residual_px : float
+        Largest accepted residual (px, :attr:`WallFit.residual_px`).
+    combine : {"median", "mean", "first"}
+        How several frames are merged before edge detection.
+    """
+
+    px_per_mm_range: tuple[float, float] = (10.0, 80.0)
+    coarse_px_per_mm: float = 2.0
+    coarse_scale_step: float = 0.10
+    coarse_rotations: int = 128
+    coarse_peaks_per_scale: int = 3
+    n_candidates: int = 4
+    n_fine: int = 2
+    edge_sigma_px: float | None = None
+    min_segment_px: int = 8
+    refine_sigma_px: float = 2.0
+    final_sigma_px: float = 1.0
+    max_line_half_width_px: float = 4.0
+    model_spacing_px: float = 1.5
+    inlier_tol_px: float = 2.5
+    min_inlier_fraction: float = 0.7
+    min_visible_fraction: float = 0.3
+    max_residual_px: float = 3.0
+    combine: str = "median"
+
+    def __post_init__(self) -> None:
+        lo, hi = self.px_per_mm_range
+        if not 0 < lo <= hi:
+            raise ValueError(f"px_per_mm_range must be 0 < lo <= hi, got {self.px_per_mm_range}")
+        if self.combine not in ("median", "mean", "first"):
+            raise ValueError(f"combine must be 'median', 'mean' or 'first', not {self.combine!r}")
+        if self.edge_sigma_px is not None and self.edge_sigma_px <= 0:
+            raise ValueError("edge_sigma_px must be positive or None")
+
+
+@dataclass(frozen=True)
+class Registration:
+    """A phantom-to-image similarity and how well the walls fit it.
+
+    Parameters
+    ----------
+    pose : CameraPose
+        Phantom (mm) to image (px) similarity.
+    residual_px : float
+        Median distance (px) from the visible model walls to their image edges (taking the
+        edges' polarity and the line half width into account), the statistic :func:`check`
+        recomputes on later frames; a few tenths of a pixel for a good registration.
+    inlier_fraction : float
+        Fraction of visible wall points with an edge of matching orientation within
+        ``inlier_tol_px``.
+    visible_fraction : float
+        Fraction of the model's wall length inside the frame.
+    matched_length_mm : float
+        Wall length (mm) supported by inliers.
+    line_half_width_px : float
+        Estimated half width (px) of the wall lines (> 0 dark lines, < 0 bright lines,
+        about 0 for region boundaries).
+    edge_sigma_px : float
+        Canny smoothing (px) used; :func:`check` uses the same.
+    image_size : tuple of int
+        ``(width, height)`` (px) of the frames registered.
+    """
+
+    pose: CameraPose
+    residual_px: float
+    inlier_fraction: float = float("nan")
+    visible_fraction: float = float("nan")
+    matched_length_mm: float = float("nan")
+    line_half_width_px: float = float("nan")
+    edge_sigma_px: float = 1.0
+    image_size: tuple[int, int] = (0, 0)
+    _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
+
+    def to_dict(self) -> dict:
+        """SPEC §6 registration keys plus the fit statistics (JSON-ready)."""
+        p = self.pose
+        return {
+            "centre_x_px": float(p.centre_x_px),
+            "centre_y_px": float(p.centre_y_px),
+            "rotation_rad": float(p.rotation_rad),
+            "px_per_mm": float(p.px_per_mm),
+            "mirrored": bool(p.mirrored),
+            "residual_px": float(self.residual_px),
+            "inlier_fraction": float(self.inlier_fraction),
+            "visible_fraction": float(self.visible_fraction),
+            "matched_length_mm": float(self.matched_length_mm),
+            "line_half_width_px": float(self.line_half_width_px),
+            "edge_sigma_px": float(self.edge_sigma_px),
+            "image_width_px": int(self.image_size[0]),
+            "image_height_px": int(self.image_size[1]),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Registration":
+        """Inverse of :meth:`to_dict`; only the SPEC §6 keys are required."""
+        pose = CameraPose(
+            float(d["centre_x_px"]),
+            float(d["centre_y_px"]),
+            float(d["rotation_rad"]),
+            float(d["px_per_mm"]),
+            bool(d["mirrored"]),
+        )
+        nan = float("nan")
+        return cls(
+            pose=pose,
+            residual_px=float(d["residual_px"]),
+            inlier_fraction=float(d.get("inlier_fraction", nan)),
+            visible_fraction=float(d.get("visible_fraction", nan)),
+            matched_length_mm=float(d.get("matched_length_mm", nan)),
+            line_half_width_px=float(d.get("line_half_width_px", nan)),
+            edge_sigma_px=float(d.get("edge_sigma_px", 1.0)),
+            image_size=(int(d.get("image_width_px", 0)), int(d.get("image_height_px", 0))),
+        )
+
+
+class RegistrationError(Exception):
+    """No phantom was found in the frames; the message says why."""
+
+
+# --------------------------------------------------------------------------- wall model
+
+
+@dataclass(frozen=True)
+class WallModel:
+    """The channel walls sampled evenly, with unit normals pointing out of the channel.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2)
+        Wall points (mm, phantom frame).
+    normals : ndarray, shape (n, 2)
+        Unit normals at the points, pointing away from the channel's interior.
+    spacing_mm : float
+        Arc-length spacing (mm) of the points.
+    group : ndarray of int, shape (n,)
+        Part of the channel: 0 the entry walls, 1 the spiral walls up to half a turn, 2 the
+        second half-turn, 3 the rest with the closing cap. A rotation about the spiral
+        centre hardly moves the log-spiral walls but does move groups 0 and 1.
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    spacing_mm: float
+    group: np.ndarray
+
+    @property
+    def length_mm(self) -> float:
+        """Total wall length (mm) represented."""
+        return len(self.points) * self.spacing_mm
+
+    def subsample(self, spacing_mm: float) -> "WallModel":
+        """Every k-th point, so that the spacing is about ``spacing_mm`` (mm) or more."""
+        k = max(1, int(round(spacing_mm / self.spacing_mm)))
+        return WallModel(self.points[::k], self.normals[::k], self.spacing_mm * k, self.group[::k])
+
+
+def _resample(line: np.ndarray, spacing_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points every ``spacing_mm`` (mm) along a polyline, their unit left normals and arc lengths."""
+    seg = np.diff(line, axis=0)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    n = max(2, int(np.floor(s[-1] / spacing_mm)) + 1)
+    si = (np.arange(n) + 0.5) * (s[-1] / n)
+    pts = np.stack([np.interp(si, s, line[:, 0]), np.interp(si, s, line[:, 1])], axis=1)
+    eps = 0.5 * spacing_mm
+    ahead = np.stack([np.interp(si + eps, s, line[:, 0]), np.interp(si + eps, s, line[:, 1])], axis=1)
+    behind = np.stack([np.interp(si - eps, s, line[:, 0]), np.interp(si - eps, s, line[:, 1])], axis=1)
+    tangent = ahead - behind
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    return pts, np.stack([-tangent[:, 1], tangent[:, 0]], axis=1), si
+
+
+def wall_model(phantom: Phantom = DEFAULT_PHANTOM, spacing_mm: float = 0.02) -> WallModel:
+    """All walls of the channel as evenly spaced points with normals pointing out of it.
+
+    Parameters
+    ----------
+    phantom : Phantom
+        Phantom configuration.
+    spacing_mm : float
+        Arc-length spacing (mm) of the points.
+
+    Returns
+    -------
+    WallModel
+        Outer and inner spiral walls, the two entry walls and the closing cap at theta_end.
+        Every normal points away from the channel's interior, so an edge's polarity (dark to
+        bright along the normal or against it) means the same on every wall.
+    """
+    def outward(nrm: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        return np.where((np.sum(nrm * ref, axis=1) < 0)[:, None], -nrm, nrm)
+
+    parts = []
+    for wall, sign in ((phantom.outer_wall, 1.0), (phantom.inner_wall, -1.0)):
+        pts, nrm, si = _resample(wall.points, spacing_mm)
+        half_turns = (np.interp(si, wall.s, wall.theta) - phantom.theta_start) // np.pi
+        # out of the channel: away from the spiral centre on the outer wall, towards it on the inner
+        parts.append((pts, outward(nrm, sign * pts), 1 + np.minimum(half_turns, 2).astype(int)))
+    _, _, n_w = entry_frame(phantom)
+    for segment, out in zip(entry_walls(phantom), (n_w, -n_w)):
+        pts, nrm, _ = _resample(segment, spacing_mm)
+        parts.append((pts, outward(nrm, out[None, :]), np.zeros(len(pts), int)))
+    cap = np.stack([phantom.inner_wall.points[-1], phantom.outer_wall.points[-1]])
+    pts, nrm, _ = _resample(cap, spacing_mm)
+    t_end = backbone_frame(phantom.theta_end, phantom)[1]
+    parts.append((pts, outward(nrm, t_end), np.full(len(pts), 3)))
+    return WallModel(
+        np.vstack([p[0] for p in parts]),
+        np.vstack([p[1] for p in parts]),
+        float(spacing_mm),
+        np.concatenate([p[2] for p in parts]),
+    )
+
+
+# --------------------------------------------------------------------------- pose helpers
+
+
+def _image_points(pose: CameraPose, model: WallModel) -> tuple[np.ndarray, np.ndarray]:
+    """Model points (px) and their unit normals in the image for ``pose``."""
+    m = pose.affine()[:, :2]
+    pts = model.points @ m.T + np.array([pose.centre_x_px, pose.centre_y_px])
+    nrm = model.normals @ (m.T / pose.px_per_mm)  # a similarity: normals stay unit
+    return pts, nrm
+
+
+def _scaled_pose(pose: CameraPose, factor: float) -> CameraPose:
+    """The pose on an image resized by ``factor`` (pixel-centre convention)."""
+    return CameraPose(
+        (pose.centre_x_px + 0.5) * factor - 0.5,
+        (pose.centre_y_px + 0.5) * factor - 0.5,
+        pose.rotation_rad,
+        pose.px_per_mm * factor,
+        pose.mirrored,
+    )
+
+
+def _wrap(angle: float) -> float:
+    """Angle (rad) wrapped to [-π, π)."""
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _updated(pose: CameraPose, step: np.ndarray, rho: float) -> CameraPose:
+    """Apply a linearised similarity update.
+
+    ``step`` = (dx, dy, dlog_scale·rho, dangle·rho) in px, the last two about the current
+    centre with lever arm ``rho`` (px); ``dangle`` is an image-frame rotation (x right, y
+    down), which is ``-d rotation_rad``.
+    """
+    return CameraPose(
+        float(pose.centre_x_px + step[0]),
+        float(pose.centre_y_px + step[1]),
+        _wrap(pose.rotation_rad - step[3] / rho),
+        float(pose.px_per_mm * math.exp(step[2] / rho)),
+        pose.mirrored,
+    )
+
+
+def _similarity_jacobian(pts: np.ndarray, nrm: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
+    """Rows ``d(n·x)/d step`` for :func:`_updated` and the lever arm ``rho`` (px)."""
+    d = pts - centre
+    rho = float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) + 1e-9
+    jac = np.stack(
+        [
+            nrm[:, 0],
+            nrm[:, 1],
+            np.sum(nrm * d, axis=1) / rho,
+            (nrm[:, 1] * d[:, 0] - nrm[:, 0] * d[:, 1]) / rho,
+        ],
+        axis=1,
+    )
+    return jac, rho
+
+
+# --------------------------------------------------------------------------- frames, edges
+
+
+def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -> np.ndarray:
+    """Merge frames of a static view into one float32 grey image (0–255 scale).
+
+    Parameters
+    ----------
+    frames : list of ndarray, or one ndarray
+        Frames (grey or BGR, any dtype :func:`vision.edges.as_float_gray` accepts), same size.
+    how : {"median", "mean", "first"}
+        Per-pixel median (default: keeps the static walls, drops what moves, such as the
+        array), mean, or only the first frame. Each frame's global gain is normalised first,
+        so lighting flicker does not enter.
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w)
+    """
+    if isinstance(frames, np.ndarray) and (frames.ndim == 2 or (frames.ndim == 3 and frames.shape[2] in (1, 3, 4))):
+        frames = [frames]
+    frames = list(frames)
+    if not frames:
+        raise RegistrationError("no frames given")
+    greys = [as_float_gray(f) for f in frames]
+    shape = greys[0].shape
+    if any(g.shape != shape for g in greys):
+        raise ValueError("frames differ in size")
+    if len(greys) == 1 or how == "first":
+        return greys[0]
+    means = np.array([float(g.mean()) for g in greys])
+    ref = float(np.median(means))
+    stack = np.stack([g * (ref / m) if m > 1e-6 else g for g, m in zip(greys, means)])
+    merged = np.median(stack, axis=0) if how == "median" else stack.mean(axis=0)
+    return np.clip(merged, 0.0, 255.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Edge data of the merged frame, with the fields the search and the fits sample."""
+
+    edge_map: EdgeMap
+    points: np.ndarray  # (n, 2) sub-pixel edge points (px)
+    field: np.ndarray  # (h, w, 2) doubled-angle field exp(2i alpha), unsmoothed
+    pyramid: list[np.ndarray]  # smoothed doubled-angle fields, level L at scale 2^-L
+    signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
+
+
+def _splat_vectors(points: np.ndarray, vectors: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear splat of 2-vectors at sub-pixel ``points`` (px) into an (h, w, 2) image."""
+    h, w = shape
+    out = np.zeros((2, h * w), np.float64)
+    if len(points):
+        x = np.clip(points[:, 0], 0.0, w - 1.0001)
+        y = np.clip(points[:, 1], 0.0, h - 1.0001)
+        x0, y0 = x.astype(np.intp), y.astype(np.intp)
+        fx, fy = x - x0, y - y0
+        base = y0 * w + x0
+        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
+        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+        out[0] = np.bincount(idx, wgt * np.tile(vectors[:, 0], 4), minlength=h * w)
+        out[1] = np.bincount(idx, wgt * np.tile(vectors[:, 1], 4), minlength=h * w)
+    return np.ascontiguousarray(out.T.reshape(h, w, 2), dtype=np.float32)
+
+
+def _prepare_edges(gray: np.ndarray, sigma_px: float, cfg: RegistrationConfig, levels: int) -> _Edges:
+    """Canny, sub-pixel points and the orientation fields of one (merged) frame."""
+    em = detect_edges(gray, sigma_px=sigma_px, min_length_px=cfg.min_segment_px)
+    pts, nrm = subpixel_edges(em)
+    fld = orientation_field(pts, nrm, em.shape)
+    pyramid = [cv2.GaussianBlur(fld, (0, 0), 0.7)]
+    cur = fld
+    for _ in range(levels):
+        h, w = cur.shape[:2]
+        if min(h, w) < 16:
+            break
+        cur = cv2.resize(cur, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA) * 2.0
+        pyramid.append(cv2.GaussianBlur(cur, (0, 0), 0.7))
+    signed = cv2.GaussianBlur(_splat_vectors(pts, nrm, em.shape), (0, 0), 0.7)
+    return _Edges(em, pts, fld, pyramid, signed)
+
+
+# --------------------------------------------------------------------------- coarse search
+
+
+@dataclass(frozen=True)
+class _Proposal:
+    """A candidate pose and its score (larger is better; units depend on the stage)."""
+
+    score: float
+    pose: CameraPose
+
+
+def _splat_many(
+    points: np.ndarray, values: np.ndarray, which: np.ndarray, n_images: int, shape: tuple[int, int]
+) -> np.ndarray:
+    """Bilinear splat of complex ``values`` at ``points`` (px) into image ``which`` of a stack.
+
+    Points are clipped to the image (callers keep them inside). Returns an
+    ``(n_images, h * w)`` complex array.
+    """
+    h, w = shape
+    x = np.clip(points[:, 0], 0.0, w - 1.0001)
+    y = np.clip(points[:, 1], 0.0, h - 1.0001)
+    x0, y0 = x.astype(np.intp), y.astype(np.intp)
+    fx, fy = x - x0, y - y0
+    base = which * (h * w) + y0 * w + x0
+    idx = np.concatenate([base, base + 1, base + w, base + w + 1])
+    wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+    vals = np.tile(values, 4) * wgt
+    n = n_images * h * w
+    out = np.empty(n, np.complex128)
+    out.real = np.bincount(idx, vals.real, minlength=n)
+    out.imag = np.bincount(idx, vals.imag, minlength=n)
+    return out.reshape(n_images, h * w)
+
+
+@dataclass(frozen=True)
+class _TemplateStack:
+    """Coarse templates of the walls for every rotation and both mirrors.
+
+    Each template is a ``size x size`` doubled-angle image of the walls at
+    ``coarse_px_per_mm`` with the spiral centre on its middle pixel.
+    """
+
+    size: int
+    rotations: np.ndarray  # (J,) rotation_rad of each template
+    stack_real: np.ndarray  # (2 size², 2J) float32: [real parts; imaginary parts], mirror-major
+    mean: np.ndarray  # (2, size, size, 2) float32: rotation-averaged template of each mirror
+
+
+def _template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack:
+    """Render the two mirrors' templates once and rotate them with ``cv2.warpAffine``.
+
+    Raising ``rotation_rad`` by phi turns the image by ``R(-phi)`` about the centre and
+    multiplies the doubled-angle values by ``exp(-2i phi)``.
+    """
+    w0 = cfg.coarse_px_per_mm
+    radius = float(np.max(np.hypot(model.points[:, 0], model.points[:, 1])))
+    size = 2 * int(math.ceil(radius * w0 + 2.5)) + 1
+    c = float(size // 2)
+    coarse = model.subsample(0.25 / w0)
+    weight = coarse.spacing_mm * w0  # template density: 1 per coarse px of wall
+    rotations = np.arange(cfg.coarse_rotations) * (2 * np.pi / cfg.coarse_rotations)
+    bases = []
+    for mirrored in (False, True):
+        pts, nrm = _image_points(CameraPose(c, c, 0.0, w0, mirrored), coarse)
+        val = weight * (nrm[:, 0] + 1j * nrm[:, 1]) ** 2
+        flat = _splat_many(pts, val, np.zeros(len(pts), np.intp), 1, (size, size))[0].reshape(size, size)
+        bases.append(np.dstack([flat.real, flat.imag]).astype(np.float32))
+    images = np.empty((2, len(rotations), size, size, 2), np.float32)
+    for m, base in enumerate(bases):
+        for j, phi in enumerate(rotations):
+            cs, sn = math.cos(phi), math.sin(phi)
+            # destination x samples the base at c + R(phi) (x - c)
+            rot = np.array([[cs, -sn, c - cs * c + sn * c], [sn, cs, c - sn * c - cs * c]], np.float64)
+            images[m, j] = cv2.warpAffine(
+                base, rot, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=0.0
+            )
+    phase_c = np.cos(2 * rotations).astype(np.float32)[None, :, None, None]  # exp(-2i phi)
+    phase_s = -np.sin(2 * rotations).astype(np.float32)[None, :, None, None]
+    re, im = images[..., 0].copy(), images[..., 1]
+    images[..., 0] = re * phase_c - im * phase_s
+    images[..., 1] = re * phase_s + im * phase_c
+    flat = images.reshape(2 * len(rotations), size * size, 2)
+    stack_real = np.ascontiguousarray(np.hstack([flat[..., 0], flat[..., 1]]).T)
+    return _TemplateStack(size, rotations, stack_real, np.ascontiguousarray(images.mean(axis=1)))
+
+
+def _peaks(score: np.ndarray, n: int, radius: int) -> list[tuple[int, int]]:
+    """Up to ``n`` local maxima (row, col) of ``score``, at least ``radius`` apart."""
+    k = 2 * radius + 1
+    dil = cv2.dilate(score.astype(np.float32), np.ones((k, k), np.uint8))
+    cand = np.argwhere((score >= dil) & (score > 0))
+    if len(cand) == 0:
+        return []
+    vals = score[cand[:, 0], cand[:, 1]]
+    out: list[tuple[int, int]] = []
+    for i in np.argsort(-vals):
+        r, c = cand[i]
+        if all(max(abs(r - r2), abs(c - c2)) > radius for r2, c2 in out):
+            out.append((int(r), int(c)))
+            if len(out) == n:
+                break
+    return out
+
+
+def _shrunk_field(pyramid: list[np.ndarray], factor: float) -> tuple[np.ndarray, float, float]:
+    """The doubled-angle field shrunk by ``factor`` (> 1), as edge length per shrunk pixel.
+
+    Starts from the pyramid level that leaves at least a factor 2 to shrink. Returns the
+    2-channel float32 image and the actual x and y shrink factors (full-resolution px per
+    shrunk px).
+    """
+    level = int(np.clip(math.floor(math.log2(max(factor, 1.0) / 2.0)), 0, len(pyramid) - 1))
+    src = pyramid[level]
+    h0, w0 = pyramid[0].shape[:2]
+    h, w = src.shape[:2]
+    wk = max(1, int(round(w0 / factor)))
+    hk = max(1, int(round(h0 / factor)))
+    zk = cv2.resize(src, (wk, hk), interpolation=cv2.INTER_AREA).reshape(hk, wk, 2)
+    zk *= math.sqrt((w / wk) * (h / hk))
+    zk = cv2.GaussianBlur(zk, (0, 0), 0.8).reshape(hk, wk, 2)
+    return zk, w0 / wk, h0 / hk
+
+
+def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> list[_Proposal]:
+    """Global search over scale, rotation, mirror and centre (see module docstring).
+
+    For each scale the orientation field is shrunk so the phantom would appear at
+    ``coarse_px_per_mm``; the rotation-averaged template (a ring detector) is correlated with
+    it (``cv2.matchTemplate``, summing ``Re(z · conj(t))`` over the two channels) and its best
+    peaks are kept; all rotations and both mirrors are then scored at those peaks by one
+    matrix product of image patches with the template stack.
+    """
+    tpl = _template_stack(model, cfg)
+    size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
+    lo, hi = cfg.px_per_mm_range
+    n_scales = max(1, int(math.ceil(math.log(hi / lo) / math.log1p(cfg.coarse_scale_step))) + 1)
+    spots = []  # (scale, shrink x, shrink y, centre x, centre y) per patch
+    patches = []
+    for s in np.geomspace(lo, hi, n_scales):
+        z, fx, fy = _shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm)
+        hk, wk = z.shape[:2]
+        # zero-pad by a template on each side: the spiral centre may lie outside the frame
+        padded = cv2.copyMakeBorder(z, size, size, size, size, cv2.BORDER_CONSTANT, value=0)
+        detector = np.maximum(
+            cv2.matchTemplate(padded, tpl.mean[0], cv2.TM_CCORR),
+            cv2.matchTemplate(padded, tpl.mean[1], cv2.TM_CCORR),
+        )
+        # detector[u, v]: template's top-left at padded (u, v), its centre at image (v + c - size, u + c - size)
+        for u, v in _peaks(detector, cfg.coarse_peaks_per_scale, radius=2):
+            patch = padded[u : u + size, v : v + size]
+            patches.append(np.concatenate([patch[..., 0].ravel(), patch[..., 1].ravel()]))
+            spots.append((float(s), fx, fy, v + c - size, u + c - size))
+    if not patches:
+        return []
+    scores = np.stack(patches) @ tpl.stack_real  # (n_spots, 2J)
+    proposals: list[_Proposal] = []
+    for (s, fx, fy, ax, ay), row in zip(spots, scores):
+        j = int(np.argmax(row))
+        mirrored, rot = bool(j // n_rot), float(tpl.rotations[j % n_rot])
+        cx, cy = (ax + 0.5) * fx - 0.5, (ay + 0.5) * fy - 0.5
+        proposals.append(_Proposal(float(row[j]), CameraPose(cx, cy, _wrap(rot), s, mirrored)))
+    proposals.sort(key=lambda p: -p.score)
+    return _distinct(proposals, cfg.n_candidates)
+
+
+def _distinct(proposals: list[_Proposal], n: int) -> list[_Proposal]:
+    """The best ``n`` proposals, skipping near-duplicates of better ones."""
+    out: list[_Proposal] = []
+    for p in proposals:
+        dup = False
+        for q in out:
+            a, b = p.pose, q.pose
+            if (
+                a.mirrored == b.mirrored
+                and abs(math.log(a.px_per_mm / b.px_per_mm)) < 0.12
+                and abs(_wrap(a.rotation_rad - b.rotation_rad)) < 0.15
+                and math.hypot(a.centre_x_px - b.centre_x_px, a.centre_y_px - b.centre_y_px) < 0.5 * a.px_per_mm
+            ):
+                dup = True
+                break
+        if not dup:
+            out.append(p)
+            if len(out) == n:
+                break
+    return out
+
+
+# --------------------------------------------------------------------------- refinement
+
+# Variance (px²) by which an edge is spread in the sampled fields: Gaussian 0.7 px plus the
+# bilinear splat and the bilinear sampling (1/6 px² each). A Gaussian-weighted mean offset
+# with kernel sigma sees an edge at sigma² / (sigma² + this) of its true offset.
+_FIELD_BLUR_VAR = 0.7**2 + 2.0 / 6.0
+
+
+def _profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a 2-channel field along each point's normal at offsets ``t`` (px).
+
+    Returns an ``(n, len(t), 2)`` float32 array (zero outside the image).
+    """
+    sx = (pts[:, 0:1] + t[None, :] * nrm[:, 0:1]).astype(np.float32)
+    sy = (pts[:, 1:2] + t[None, :] * nrm[:, 1:2]).astype(np.float32)
+    return cv2.remap(fld, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def _solve_step(jac: np.ndarray, r: np.ndarray, wt: np.ndarray, max_px: float) -> np.ndarray | None:
+    """Weighted least-squares step, or None when it is not trustworthy.
+
+    Weights are capped at 3x their mean (no single cluttered spot dominates). The step moves
+    no model point by more than ``max_px`` (px): the offsets it fits are at most that large,
+    so a bigger step means an ill-conditioned system (e.g. only one straight edge matched).
+    """
+    wt = np.minimum(wt, 3.0 * float(wt.mean()))
+    ata = jac.T @ (jac * wt[:, None])
+    atb = jac.T @ (wt * r)
+    try:
+        step = np.linalg.solve(ata + 1e-9 * np.trace(ata) * np.eye(len(atb)), atb)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(step)):
+        return None
+    largest = float(np.abs(jac @ step).max()) if len(jac) else 0.0
+    return step * (max_px / largest) if largest > max_px else step
+
+
+def _visible(pts: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    h, w = shape[:2]
+    return (pts[:, 0] > -1) & (pts[:, 0] < w) & (pts[:, 1] > -1) & (pts[:, 1] < h)
+
+
+def _refine_level(
+    pose: CameraPose,
+    fld: np.ndarray,
+    model: WallModel,
+    sigma: float,
+    iterations: int,
+    tol_px: float = 0.02,
+) -> CameraPose:
+    """Refine ``pose`` on one level of the doubled-angle pyramid (px of that level).
+
+    Every wall point samples the field along its normal; the sample's agreement with the
+    wall's orientation, times a Gaussian of the offset (``sigma``, px), weights a mean offset
+    (a 1-D mean shift). A weighted Gauss–Newton step of the similarity then moves the walls
+    by those offsets; iterate until the step is below ``tol_px``.
+    """
+    gain = 1.0 + _FIELD_BLUR_VAR / sigma**2  # undoes the shrinkage of the weighted mean
+    scale0 = pose.px_per_mm
+    t = np.arange(-3.0 * sigma, 3.0 * sigma + 1e-9, 0.5)
+    kernel = np.exp(-0.5 * (t / sigma) ** 2)
+    for _ in range(iterations):
+        pts, nrm = _image_points(pose, model)
+        vis = _visible(pts, fld.shape)
+        if vis.sum() < 20:
+            break
+        pts, nrm = pts[vis], nrm[vis]
+        prof = _profiles(fld, pts, nrm, t)
+        c2 = (nrm[:, 0] ** 2 - nrm[:, 1] ** 2)[:, None]  # exp(2i beta) of the wall normal
+        s2 = (2.0 * nrm[:, 0] * nrm[:, 1])[:, None]
+        a = np.maximum(prof[..., 0] * c2 + prof[..., 1] * s2, 0.0) * kernel[None, :]
+        wsum = a.sum(axis=1)
+        ok = wsum > 1e-6
+        if ok.sum() < 20:
+            break
+        jac, rho = _similarity_jacobian(pts[ok], nrm[ok], np.array([pose.centre_x_px, pose.centre_y_px]))
+        step = _solve_step(jac, gain * (a[ok] @ t) / wsum[ok], wsum[ok], max_px=3.0 * sigma * gain)
+        if step is None:
+            break
+        pose = _updated(pose, step, rho)
+        if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
+            break  # diverging: the caller's fit statistics will reject the result
+        if float(np.abs(step).sum()) < tol_px:
+            break
+    return pose
+
+
+def _refine_signed(
+    pose: CameraPose,
+    half_width: float,
+    sfield: np.ndarray,
+    model: WallModel,
+    sigma: float,
+    iterations: int,
+    *,
+    max_half_width: float,
+    tol_px: float = 0.01,
+) -> tuple[CameraPose, float]:
+    """Polarity-aware refinement at full resolution.
+
+    Edges whose gradient (dark to bright) points out of the channel (class +) and into it
+    (class -) are fitted separately: class + at ``+half_width`` and class - at
+    ``-half_width`` (px, along the outward wall normal), ``half_width`` being estimated with
+    the pose. A dark line gives both classes at ``±h``, a bright line ``h < 0``, a region
+    boundary one class at 0. So a line seen on one side only is not biased by half its width,
+    and the walls of neighbouring turns (whose edges face the other way) do not pull on each
+    other.
+
+    Returns the pose and the half width (px).
+    """
+    gain = 1.0 + _FIELD_BLUR_VAR / sigma**2
+    scale0 = pose.px_per_mm
+    reach = max_half_width + 3.0 * sigma
+    t = np.arange(-reach, reach + 1e-9, 0.5)
+    for _ in range(iterations):
+        pts, nrm = _image_points(pose, model)
+        vis = _visible(pts, sfield.shape)
+        if vis.sum() < 20:
+            break
+        pts, nrm = pts[vis], nrm[vis]
+        prof = _profiles(sfield, pts, nrm, t)
+        proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+        base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        rows, rhs, wts = [], [], []
+        for sign in (1.0, -1.0):
+            expected = sign * half_width
+            a = np.maximum(sign * proj, 0.0) * np.exp(-0.5 * ((t - expected) / sigma) ** 2)[None, :]
+            wsum = a.sum(axis=1)
+            ok = wsum > 1e-3
+            if ok.sum() < 10:
+                continue
+            rows.append(np.hstack([base[ok], np.full((int(ok.sum()), 1), sign)]))
+            rhs.append(gain * (a[ok] @ (t - expected)) / wsum[ok])
+            wts.append(wsum[ok])
+        if not rows:
+            break
+        step = _solve_step(np.vstack(rows), np.concatenate(rhs), np.concatenate(wts), max_px=reach * gain)
+        if step is None:
+            break
+        pose = _updated(pose, step[:4], rho)
+        half_width = float(np.clip(half_width + step[4], -max_half_width, max_half_width))
+        if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
+            break
+        if float(np.abs(step).sum()) < tol_px:
+            break
+    return pose, half_width
+
+
+def _start_level(pose: CameraPose, n_levels: int) -> int:
+    """Pyramid level at which the phantom appears at 3–6 px/mm."""
+    return int(np.clip(math.floor(math.log2(max(pose.px_per_mm, 1e-6) / 3.0)), 0, n_levels - 1))
+
+
+def _refine_coarse(pose: CameraPose, edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> CameraPose:
+    """Refine a proposal down the pyramid to half resolution (doubled-angle field)."""
+    for level in range(_start_level(pose, len(edges.pyramid)), 0, -1):
+        f = 0.5**level
+        lp = _scaled_pose(pose, f)
+        sub = model.subsample(cfg.model_spacing_px / lp.px_per_mm)
+        lp = _refine_level(lp, edges.pyramid[level], sub, 1.0, iterations=10, tol_px=0.05)
+        pose = _scaled_pose(lp, 1.0 / f)
+    return pose
+
+
+def _refine_fine(
+    pose: CameraPose, edges: _Edges, model: WallModel, cfg: RegistrationConfig
+) -> tuple[CameraPose, float]:
+    """Full-resolution refinement: doubled-angle field, then the polarity-aware fit.
+
+    Returns the pose and the wall lines' half width (px).
+    """
+    sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+    pose = _refine_level(pose, edges.pyramid[0], sub, cfg.refine_sigma_px, iterations=10, tol_px=0.05)
+    return _refine_signed(
+        pose, 0.0, edges.signed, sub, cfg.final_sigma_px, iterations=20, max_half_width=cfg.max_line_half_width_px
+    )
+
+
+# --------------------------------------------------------------------------- verification
+
+# Largest distance (px) looked for between a wall and its edge when measuring residuals.
+# Larger reaches let noise edges stand in for faint walls (and a median over them swing).
+_REACH_PX = 5.0
+# Scale (px/mm) above which :func:`check` works on a shrunk crop, to stay fast.
+_CHECK_MAX_PX_PER_MM = 20.0
+# An edge pixel belongs to a wall when its gradient is within 30° of the wall normal.
+_COS_ALIGNED = math.cos(math.radians(30.0))
+
+
+@dataclass(frozen=True)
+class WallFit:
+    """How well the model walls of a pose lie on image edges.
+
+    Distances are measured along each wall's normal, from where the wall's edge is expected
+    (at ``±half_width`` for the two polarities, see :func:`_refine_signed`) to the nearest
+    Canny edge pixel whose gradient is within 30° of the normal, looked for up to 5 px away.
+
+    Parameters
+    ----------
+    residual_px : float
+        The largest, over the wall groups mostly in view (:class:`WallModel`), of the
+        median distance (px) of the walls whose edge was found within 5 px (5 px if fewer
+        than a quarter were). About 0.2–0.6 px for a good fit; faint or occluded walls do
+        not raise it, a displaced pose does, and so does a rotation about the spiral centre,
+        which the self-similar spiral alone would hide, through the entry and first half-turn.
+    inlier_fraction : float
+        Fraction of visible wall points within the inlier tolerance.
+    visible_fraction : float
+        Fraction of wall points inside the frame.
+    matched_length_mm : float
+        Wall length (mm) of the inliers.
+    """
+
+    residual_px: float
+    inlier_fraction: float
+    visible_fraction: float
+    matched_length_mm: float
+
+
+def _edge_layers(em: EdgeMap) -> np.ndarray:
+    """(h, w, 2) float32 unit gradient directions on edge pixels, zero elsewhere."""
+    mag = cv2.magnitude(em.gx, em.gy)
+    scale = np.where(em.mask, 1.0 / np.maximum(mag, 1e-12), 0.0).astype(np.float32)
+    return np.dstack([em.gx * scale, em.gy * scale])
+
+
+def _edge_distances(
+    layers: np.ndarray, pts: np.ndarray, nrm: np.ndarray, half_width: float | None, reach: float
+) -> np.ndarray:
+    """Distance (px) along each normal from a wall's expected edge to the nearest edge pixel.
+
+    Only edge pixels whose gradient is within 30° of the normal count. With ``half_width``
+    given, an edge whose gradient points out of the channel is expected at ``+half_width``
+    and one pointing in at ``-half_width``; with ``None``, any aligned edge counts from the
+    wall itself. Walls without an edge within ``reach`` get ``reach``.
+    """
+    hw = 0.0 if half_width is None else abs(half_width)
+    t = np.arange(-reach - hw, reach + hw + 1e-9, 0.5, dtype=np.float32)
+    h, w = layers.shape[:2]
+    px, py = pts[:, 0:1].astype(np.float32), pts[:, 1:2].astype(np.float32)
+    nx, ny = nrm[:, 0:1].astype(np.float32), nrm[:, 1:2].astype(np.float32)
+    # the pixels the normal passes through, and their exact offsets along it
+    ix = np.rint(px + t * nx).astype(np.intp)
+    iy = np.rint(py + t * ny).astype(np.intp)
+    np.clip(ix, 0, w - 1, out=ix)  # samples off the image read the border, which the
+    np.clip(iy, 0, h - 1, out=iy)  # offset test below then rejects as too far or misaligned
+    offset = (ix - px) * nx + (iy - py) * ny
+    prof = layers[iy, ix]
+    proj = prof[..., 0] * nx + prof[..., 1] * ny  # cos of the angle, 0 off edges
+    expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
+    dist = np.abs(offset - expected)
+    dist[(np.abs(proj) < _COS_ALIGNED) | (np.abs(offset - t) > 1.0) | (dist > reach)] = np.inf
+    return dist.min(axis=1)
+
+
+def _summarise(
+    dist: np.ndarray,
+    group: np.ndarray,
+    n_total: int,
+    group_sizes: np.ndarray,
+    tol: float,
+    spacing_mm: float,
+    reach: float = _REACH_PX,
+) -> WallFit:
+    """:class:`WallFit` from the distances (px, inf where no edge) of the visible wall points."""
+    if len(dist) == 0:
+        return WallFit(float("inf"), 0.0, 0.0, 0.0)
+    n_vis = np.bincount(group, minlength=len(group_sizes))
+    medians = []
+    for g in range(len(group_sizes)):
+        if n_vis[g] < max(10, 0.4 * group_sizes[g]):
+            continue  # mostly out of view
+        found = dist[(group == g) & np.isfinite(dist)]
+        # walls whose edge is missing (faint, occluded) do not count, unless most are missing
+        medians.append(min(float(np.median(found)), reach) if len(found) >= 0.25 * n_vis[g] else reach)
+    inlier = dist <= tol
+    return WallFit(
+        residual_px=max(medians) if medians else float(np.median(np.minimum(dist, reach))),
+        inlier_fraction=float(inlier.mean()),
+        visible_fraction=len(dist) / max(n_total, 1),
+        matched_length_mm=float(inlier.sum() * spacing_mm),
+    )
+
+
+def _wall_fit_from(
+    pose: CameraPose, layers: np.ndarray, model: WallModel, half_width: float | None, tol: float
+) -> WallFit:
+    """:class:`WallFit` of ``pose`` against a full-frame edge layer image."""
+    pts, nrm = _image_points(pose, model)
+    h, w = layers.shape[:2]
+    vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
+    reach = max(_REACH_PX, tol)
+    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach)
+    sizes = np.bincount(model.group, minlength=4)
+    return _summarise(dist, model.group[vis], len(pts), sizes, tol, model.spacing_mm, reach)
+
+
+def _check_walls(
+    pose: CameraPose, phantom: Phantom, spacing_px: float = 2.0, max_points: int = 600
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Wall points (px), normals, groups and group sizes for :func:`check`."""
+    model = wall_model(phantom, spacing_mm=0.02)
+    model = model.subsample(max(spacing_px / pose.px_per_mm, model.length_mm / max_points))
+    pts, nrm = _image_points(pose, model)
+    return pts, nrm, model.group, np.bincount(model.group, minlength=4)
+
+
+def _crop_fit(
+    frame: np.ndarray,
+    walls: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    sigma_px: float,
+    px_per_mm: float,
+    half_width: float,
+    tol: float,
+) -> WallFit:
+    """:class:`WallFit` with Canny run only on the bounding box of the visible walls.
+
+    The crop is shrunk when the scale is large (distances are reported in full-resolution
+    px), which keeps :func:`check` at a few milliseconds.
+    """
+    pts, nrm, group, sizes = walls
+    h, w = frame.shape[:2]
+    vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
+    if not vis.any():
+        return WallFit(float("inf"), 0.0, 0.0, 0.0)
+    pts, nrm, group = pts[vis], nrm[vis], group[vis]
+    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width))) + 2
+    x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int) - margin, 0)
+    x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + margin + 1, [w, h])
+    crop = frame[y0:y1, x0:x1]
+    crop = to_gray(crop) if crop.dtype == np.uint8 else as_float_gray(crop)
+    local = pts - [x0, y0]
+    f = 1.0
+    if px_per_mm > _CHECK_MAX_PX_PER_MM * 1.05:
+        ch, cw = crop.shape
+        shrink = _CHECK_MAX_PX_PER_MM / px_per_mm
+        size = (max(1, int(round(cw * shrink))), max(1, int(round(ch * shrink))))
+        crop = cv2.resize(crop, size, interpolation=cv2.INTER_AREA)
+        f = size[0] / cw
+        local = (local + 0.5) * f - 0.5
+    em = detect_edges(crop, sigma_px=max(sigma_px * f, 0.7))
+    dist = _edge_distances(_edge_layers(em), local, nrm, half_width * f, _REACH_PX * f) / f
+    n_total = int(sizes.sum())
+    return _summarise(dist, group, n_total, sizes, tol, 0.0)
+
+
+def wall_fit(
+    gray: np.ndarray,
+    registration: Registration,
+    phantom: Phantom = DEFAULT_PHANTOM,
+    cfg: RegistrationConfig = RegistrationConfig(),
+) -> WallFit:
+    """Fit statistics of a registration on a frame (edges detected afresh on its region).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (h, w) or (h, w, 3)
+        Frame (grey or BGR, any dtype :func:`vision.edges.as_float_gray` accepts).
+    registration : Registration
+        Pose, line half width and edge smoothing to test.
+    phantom : Phantom
+        Phantom geometry.
+    cfg : RegistrationConfig
+        Inlier tolerance.
+
+    Returns
+    -------
+    WallFit
+        ``matched_length_mm`` is not computed (0).
+    """
+    key = (phantom, registration.pose)
+    walls = registration._check_cache.get(key)
+    if walls is None:
+        walls = _check_walls(registration.pose, phantom)
+        registration._check_cache.clear()
+        registration._check_cache[key] = walls
+    hw = registration.line_half_width_px
+    return _crop_fit(
+        np.asarray(gray),
+        walls,
+        registration.edge_sigma_px,
+        registration.pose.px_per_mm,
+        hw if np.isfinite(hw) else 0.0,
+        cfg.inlier_tol_px,
+    )
+
+
+# --------------------------------------------------------------------------- public entry points
+
+
+# A candidate whose inliers cover this fraction of the whole wall model is taken without
+# refining the others (nothing else could explain clearly more of the walls).
+_EXCELLENT = 0.85
+
+
+def _best_pose(
+    edges: _Edges, model: WallModel, cfg: RegistrationConfig
+) -> tuple[CameraPose, float, WallFit] | None:
+    """Global search, refinement of the best proposals, and the best-supported result.
+
+    Returns the pose, the wall lines' half width (px) and the fit, or None.
+    """
+    proposals = _coarse_search(edges, model, cfg)
+    lo, hi = cfg.px_per_mm_range
+    layers = _edge_layers(edges.edge_map)
+
+    def fit(pose: CameraPose, spacing_px: float, half_width: float | None) -> WallFit:
+        sub = model.subsample(spacing_px / pose.px_per_mm)
+        tol = cfg.inlier_tol_px + (cfg.max_line_half_width_px if half_width is None else 0.0)
+        return _wall_fit_from(pose, layers, sub, half_width, tol)
+
+    # proposals to half resolution (stop early once one explains nearly all the walls) ...
+    coarse = []
+    for prop in proposals:
+        pose = _refine_coarse(prop.pose, edges, model, cfg)
+        if 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
+            matched = fit(pose, 3.0, None).matched_length_mm
+            coarse.append(_Proposal(matched, pose))
+            if matched >= _EXCELLENT * model.length_mm:
+                break
+    coarse.sort(key=lambda p: -p.score)
+    # ... and the best supported few to full resolution
+    best = None
+    for prop in _distinct(coarse, cfg.n_fine):
+        pose, half_width = _refine_fine(prop.pose, edges, model, cfg)
+        result = fit(pose, cfg.model_spacing_px, half_width)
+        if best is None or result.matched_length_mm > best[2].matched_length_mm:
+            best = (pose, half_width, result)
+        if result.matched_length_mm >= _EXCELLENT * model.length_mm:
+            break
+    return best
+
+
+def register(
+    gray_frames: list[np.ndarray] | np.ndarray,
+    phantom: Phantom = DEFAULT_PHANTOM,
+    cfg: RegistrationConfig = RegistrationConfig(),
+) -> Registration:
+    """Find the phantom in frames of a static view, with no initial guess.
+
+    Parameters
+    ----------
+    gray_frames : list of ndarray, or one ndarray
+        Frames (grey or BGR; uint8, uint16 or float) of one camera view, e.g. the first
+        frames of a video; merged per :attr:`RegistrationConfig.combine`.
+    phantom : Phantom
+        Phantom geometry.
+    cfg : RegistrationConfig
+        Search ranges and tolerances.
+
+    Returns
+    -------
+    Registration
+
+    Raises
+    ------
+    RegistrationError
+        When no pose explains the edges well enough: no phantom, too little of it in view,
+        or too few edges. The message says which test failed.
+    """
+    gray = combine_frames(gray_frames, cfg.combine)
+    h, w = gray.shape
+    sigma = cfg.edge_sigma_px if cfg.edge_sigma_px is not None else auto_sigma(gray)
+    levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
+    edges = _prepare_edges(gray, sigma, cfg, levels)
+    if len(edges.points) < 50:
+        raise RegistrationError(
+            f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
+        )
+    best = _best_pose(edges, wall_model(phantom), cfg)
+    if best is None:
+        raise RegistrationError("no phantom found: no candidate of the global search converged to a plausible scale")
+    pose, half_width, fit = best
+    reasons = []
+    if fit.visible_fraction < cfg.min_visible_fraction:
+        reasons.append(f"only {fit.visible_fraction:.0%} of its walls would be in view")
+    if fit.inlier_fraction < cfg.min_inlier_fraction:
+        reasons.append(
+            f"only {fit.inlier_fraction:.0%} of its visible walls lie on edges of matching orientation "
+            f"(need {cfg.min_inlier_fraction:.0%})"
+        )
+    if fit.residual_px > cfg.max_residual_px:
+        reasons.append(f"median wall-to-edge distance {fit.residual_px:.1f} px (max {cfg.max_residual_px:.1f})")
+    if reasons:
+        raise RegistrationError("no phantom found: the best candidate fails: " + "; ".join(reasons))
+    registration = Registration(
+        pose=pose,
+        residual_px=fit.residual_px,
+        inlier_fraction=fit.inlier_fraction,
+        visible_fraction=fit.visible_fraction,
+        matched_length_mm=fit.matched_length_mm,
+        line_half_width_px=half_width,
+        edge_sigma_px=sigma,
+        image_size=(w, h),
+    )
+    # the residual as check() will measure it on later frames
+    return replace(registration, residual_px=wall_fit(gray, registration, phantom, cfg).residual_px)
+
+
+def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAULT_PHANTOM) -> float:
+    """Residual (px) of an existing registration on a new frame, in a few milliseconds.
+
+    Canny (with the registration's smoothing) runs only on the phantom's bounding box; the
+    result is :attr:`WallFit.residual_px`, the statistic stored as
+    :attr:`Registration.residual_px`. A bumped camera shows as a residual well above the
+    registration's own, since the walls no longer lie on their edges.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (h, w) or (h, w, 3)
+        The new frame (grey or BGR; any dtype :func:`vision.edges.as_float_gray` accepts).
+    registration : Registration
+        The registration to test. The wall points are cached on it on first use.
+    phantom : Phantom
+        Phantom geometry.
+
+    Returns
+    -------
+    float
+        Residual (px); ``inf`` when no wall is in view.
+    """
+    return wall_fit(gray, registration, phantom).residual_px
