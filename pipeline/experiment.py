@@ -9,10 +9,18 @@ grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is writ
     OUT/force/<trial>.csv      force log: time_s, force_g, depth_mm on the sensor's clock
     OUT/truth/<trial>.csv      per frame: time_s, depth_mm, theta_tip, theta_bot, theta_con, ...
     OUT/truth/pose.json        the camera pose (SPEC registration keys) and the render settings
+    OUT/truth/effect.json      the hidden effect (or null) and its noiseless gap vs the noise
 
 The force is the SPEC §4 model (:mod:`pipeline.friction`, scenario S4 of the reconstruction)
 on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
 ``video_t0_s`` on the force log's clock.
+
+With ``ExperimentConfig.effect`` set, a hidden unmodelled effect (SPEC §5) is applied to the
+force logs with the generator forms of :mod:`pipeline.synthetic` (not the library forms the
+diagnosis fits), and ``OUT/truth/effect.json`` records it: name, strength, parameters, and the
+noiseless gap (RMS of the force with minus without the effect) against the noise. The
+parameters are drawn from a generator of their own (seeded from ``seed``), so the videos, the
+contact growth and the noise are the same with and without an effect.
 """
 
 from __future__ import annotations
@@ -37,7 +45,8 @@ from vision.rendering import (
 from .friction import SCENARIOS, FrictionParams, insertion_force
 from .io import atomic_write_csv, atomic_write_json
 
-__all__ = ["ExperimentConfig", "SensorConfig", "random_policy", "force_log_from_truth", "render_experiment"]
+__all__ = ["ExperimentConfig", "SensorConfig", "random_policy", "clean_forces_from_truth", "force_log_from_truth",
+           "render_experiment"]
 
 
 @dataclass(frozen=True)
@@ -88,6 +97,12 @@ class ExperimentConfig:
         Nuisance strength 0 (clean) to 1 (heavy).
     png : bool
         Write PNG folders instead of mp4 files.
+    dwell_s : float
+        Time (s) filmed and logged after the robot stops at ``depth_mm``.
+    effect : str or None
+        Hidden effect (SPEC §5 name) applied to the force logs, or None.
+    strength : float
+        Size of the hidden effect (0 absent, 1 typical; see :mod:`pipeline.synthetic`).
     """
 
     speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
@@ -100,6 +115,9 @@ class ExperimentConfig:
     nuisance: float = 0.3
     png: bool = False
     sensor: SensorConfig = SensorConfig()
+    dwell_s: float = 0.0
+    effect: str | None = None
+    strength: float = 1.0
 
 
 def random_policy(rng: np.random.Generator) -> ContactPolicy:
@@ -117,12 +135,85 @@ def random_policy(rng: np.random.Generator) -> ContactPolicy:
     )
 
 
+def _force_clock(truth: pd.DataFrame, speed_mm_s: float, sensor: SensorConfig):
+    """Sample times (s, sensor clock), depth (mm), instantaneous speed (mm/s) and true angles (rad)."""
+    t_video_end = float(truth.time_s.iloc[-1])
+    t = np.arange(0.0, sensor.lead_s + t_video_end + 1e-9, 1.0 / sensor.rate_hz)
+    tv = t - sensor.lead_s
+    depth = np.interp(tv, truth.time_s, truth.depth_mm, left=float(truth.depth_mm.iloc[0]))
+    bot = np.interp(tv, truth.time_s, truth.theta_bot)
+    tip = np.interp(tv, truth.time_s, truth.theta_tip)
+    moving = np.gradient(depth) > 0
+    return t, depth, np.where(moving, speed_mm_s, 0.0), tip, bot
+
+
+def clean_forces_from_truth(
+    truth: pd.DataFrame,
+    speed_mm_s: float,
+    params: FrictionParams,
+    sensor: SensorConfig = SensorConfig(),
+    *,
+    effect: str | None = None,
+    effect_values: dict | None = None,
+    rng: np.random.Generator | None = None,
+) -> pd.DataFrame:
+    """Noiseless forces of one rendered trial, without and with a hidden effect.
+
+    Parameters
+    ----------
+    truth : pandas.DataFrame
+        The renderer's per-frame truth (``time_s`` on the video clock, ``depth_mm``, angles in rad).
+    speed_mm_s : float
+        Insertion speed (mm/s).
+    params : FrictionParams
+        Force-model parameters.
+    sensor : SensorConfig
+        Sampling (``rate_hz``, ``lead_s``).
+    effect : str or None
+        Hidden effect (SPEC §5 name) or None.
+    effect_values : dict, optional
+        Its parameters (:func:`pipeline.synthetic.draw_effect_params`).
+    rng : numpy.random.Generator, optional
+        Randomness of the effect (drift's random walk).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time_s`` (s, sensor clock), ``depth_mm``, ``force_base_g`` and ``force_effect_g`` (g),
+        the true ``theta_tip``, ``theta_bot`` (rad), the instantaneous ``sliding_mm_s`` (mm/s) and
+        ``pressure_scale`` (1).
+    """
+    t, depth, v, tip, bot = _force_clock(truth, speed_mm_s, sensor)
+    base = np.where(tip > bot, insertion_force(bot, tip, v, params), 0.0)
+    with_effect = base
+    if effect is not None:
+        from .synthetic import TrialState, apply_hidden_effect
+
+        state = TrialState.single(t, depth, v, tip, bot, params)
+        with_effect = apply_hidden_effect(effect, base, state, effect_values or {},
+                                          rng if rng is not None else np.random.default_rng(0))
+    return pd.DataFrame(dict(time_s=t, depth_mm=depth, force_base_g=base, force_effect_g=with_effect,
+                             theta_tip=tip, theta_bot=bot, sliding_mm_s=v, pressure_scale=1.0))
+
+
+def _sense(clean: pd.DataFrame, rng: np.random.Generator, sensor: SensorConfig) -> pd.DataFrame:
+    force = clean["force_effect_g"].to_numpy() + rng.normal(0.0, sensor.noise_g, len(clean))
+    lsb = 2 * sensor.range_g / 2**sensor.bits
+    force = np.clip(np.round(force / lsb) * lsb, -sensor.range_g, sensor.range_g)
+    return pd.DataFrame(dict(time_s=np.round(clean["time_s"].to_numpy(), 6), force_g=force,
+                             depth_mm=np.round(clean["depth_mm"].to_numpy(), 5)))
+
+
 def force_log_from_truth(
     truth: pd.DataFrame,
     speed_mm_s: float,
     params: FrictionParams,
     rng: np.random.Generator,
     sensor: SensorConfig = SensorConfig(),
+    *,
+    effect: str | None = None,
+    effect_values: dict | None = None,
+    effect_rng: np.random.Generator | None = None,
 ) -> pd.DataFrame:
     """A force log (SPEC §6) for one rendered trial.
 
@@ -138,6 +229,12 @@ def force_log_from_truth(
         Source of the noise.
     sensor : SensorConfig
         Sampling, noise and quantisation.
+    effect : str or None
+        Hidden effect (SPEC §5 name) applied before the noise, or None.
+    effect_values : dict, optional
+        Its parameters (:func:`pipeline.synthetic.draw_effect_params`).
+    effect_rng : numpy.random.Generator, optional
+        Randomness of the effect (default: a fixed generator), kept apart from ``rng``.
 
     Returns
     -------
@@ -145,18 +242,9 @@ def force_log_from_truth(
         ``time_s`` (s, sensor clock; the video's frame 0 is at ``sensor.lead_s``), ``force_g``
         and ``depth_mm``.
     """
-    t_video_end = float(truth.time_s.iloc[-1])
-    t = np.arange(0.0, sensor.lead_s + t_video_end + 1e-9, 1.0 / sensor.rate_hz)
-    tv = t - sensor.lead_s
-    depth = np.interp(tv, truth.time_s, truth.depth_mm, left=float(truth.depth_mm.iloc[0]))
-    bot = np.interp(tv, truth.time_s, truth.theta_bot)
-    tip = np.interp(tv, truth.time_s, truth.theta_tip)
-    moving = np.gradient(depth) > 0
-    force = np.where(tip > bot, insertion_force(bot, tip, np.where(moving, speed_mm_s, 0.0), params), 0.0)
-    force = force + rng.normal(0.0, sensor.noise_g, len(t))
-    lsb = 2 * sensor.range_g / 2**sensor.bits
-    force = np.clip(np.round(force / lsb) * lsb, -sensor.range_g, sensor.range_g)
-    return pd.DataFrame(dict(time_s=np.round(t, 6), force_g=force, depth_mm=np.round(depth, 5)))
+    clean = clean_forces_from_truth(truth, speed_mm_s, params, sensor, effect=effect, effect_values=effect_values,
+                                    rng=effect_rng)
+    return _sense(clean, rng, sensor)
 
 
 def _trial_name(speed: float, k: int) -> str:
@@ -185,26 +273,43 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     pose = random_pose(rng, cfg.width, cfg.height, px_per_mm=(20.0, 40.0))
     look = random_appearance(rng)
     params = SCENARIOS["S4"].params()
-    rows = []
+    effect_rng = np.random.default_rng([seed, 5])  # apart from rng: same videos and noise with or without
+    effect = None if cfg.effect is None or str(cfg.effect).lower() == "none" else str(cfg.effect)
+    values = {}
+    if effect is not None:
+        from .synthetic import draw_effect_params
+
+        values = draw_effect_params(effect, effect_rng, cfg.strength)
+    rows, cleans, logs = [], [], []
     for speed in cfg.speeds_mm_s:
         for k in range(cfg.trials):
             trial = _trial_name(speed, k)
             spec = VideoSpec(
                 pose=pose, width=cfg.width, height=cfg.height, fps=cfg.fps, speed_mm_s=speed,
-                start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, policy=random_policy(rng),
+                start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, dwell_s=cfg.dwell_s, policy=random_policy(rng),
                 appearance=look, nuisance=random_nuisance(rng, cfg.nuisance), max_frames=cfg.max_frames,
             )
             name = Path("videos") / (trial if cfg.png else f"{trial}.mp4")
             truth = render_video(out / name, spec, seed=int(rng.integers(2**31)))
             truth.insert(0, "trial", trial)
             atomic_write_csv(out / "truth" / f"{trial}.csv", truth)
-            log = force_log_from_truth(truth, speed, params, rng, cfg.sensor)
+            clean = clean_forces_from_truth(truth, speed, params, cfg.sensor, effect=effect, effect_values=values,
+                                            rng=effect_rng)
+            log = _sense(clean, rng, cfg.sensor)
             force_name = Path("force") / f"{trial}.csv"
             atomic_write_csv(out / force_name, log)
+            cleans.append(clean.assign(speed_mm_s=float(speed)))
+            logs.append(log)
             rows.append(dict(trial=trial, speed_mm_s=speed, video=str(name), force=str(force_name),
                              fps=spec.effective_fps(), video_t0_s=cfg.sensor.lead_s))
     manifest = pd.DataFrame(rows)
     atomic_write_csv(out / "manifest.csv", manifest)
+    from .synthetic import effect_truth
+
+    atomic_write_json(out / "truth" / "effect.json",
+                      effect_truth(effect, cfg.strength, values, pd.concat(cleans, ignore_index=True),
+                                   np.concatenate([lg["force_g"].to_numpy() for lg in logs]), base=params,
+                                   extra=dict(mode="video", seed=seed, sensor=asdict(cfg.sensor))))
     atomic_write_json(
         out / "truth" / "pose.json",
         dict(pose=dict(asdict(pose), residual_px=0.0), appearance=asdict(look), config=asdict(cfg), seed=seed),
