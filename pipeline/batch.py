@@ -116,8 +116,8 @@ class ExtractConfig:
     register_frames: int = 5
     measure: Any = field(default_factory=_default_measure_config)
     registration: Any = field(default_factory=_default_registration_config)
-    recheck_factor: float = 3.0
-    recheck_margin_px: float = 2.0
+    recheck_factor: float = 2.0
+    recheck_margin_px: float = 0.6
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:

@@ -342,7 +342,7 @@ def _image_points(pose: CameraPose, model: WallModel) -> tuple[np.ndarray, np.nd
     """Model points (px) and their unit normals in the image for ``pose``."""
     m = pose.affine()[:, :2]
     pts = model.points @ m.T + np.array([pose.centre_x_px, pose.centre_y_px])
-    nrm = model.normals @ (m.T / pose.px_per_mm)  # a similarity: normals stay unit
+    nrm = model.normals @ (m.T / max(pose.px_per_mm, 1e-12))  # a similarity: normals stay unit
     return pts, nrm
 
 
@@ -397,6 +397,16 @@ def _similarity_jacobian(pts: np.ndarray, nrm: np.ndarray, centre: np.ndarray) -
 # --------------------------------------------------------------------------- frames, edges
 
 
+def _frame_list(frames: list[np.ndarray] | np.ndarray) -> list[np.ndarray]:
+    """One frame (grey or colour) or several, as a non-empty list."""
+    if isinstance(frames, np.ndarray) and (frames.ndim == 2 or (frames.ndim == 3 and frames.shape[2] in (1, 3, 4))):
+        frames = [frames]
+    frames = list(frames)
+    if not frames:
+        raise RegistrationError("no frames given")
+    return frames
+
+
 def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -> np.ndarray:
     """Merge frames of a static view into one float32 grey image (0–255 scale).
 
@@ -413,11 +423,7 @@ def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -
     -------
     ndarray of float32, shape (h, w)
     """
-    if isinstance(frames, np.ndarray) and (frames.ndim == 2 or (frames.ndim == 3 and frames.shape[2] in (1, 3, 4))):
-        frames = [frames]
-    frames = list(frames)
-    if not frames:
-        raise RegistrationError("no frames given")
+    frames = _frame_list(frames)
     greys = [as_float_gray(f) for f in frames]
     shape = greys[0].shape
     if any(g.shape != shape for g in greys):
@@ -1125,7 +1131,8 @@ def register(
         When no pose explains the edges well enough: no phantom, too little of it in view,
         or too few edges. The message says which test failed.
     """
-    gray = combine_frames(gray_frames, cfg.combine)
+    frames = _frame_list(gray_frames)
+    gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
     sigma = cfg.edge_sigma_px if cfg.edge_sigma_px is not None else auto_sigma(gray)
     levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
@@ -1160,8 +1167,8 @@ def register(
         edge_sigma_px=sigma,
         image_size=(w, h),
     )
-    # the residual as check() will measure it on later frames
-    return replace(registration, residual_px=wall_fit(gray, registration, phantom, cfg).residual_px)
+    # the residual as check() will measure it on later frames: on one frame as given
+    return replace(registration, residual_px=wall_fit(frames[0], registration, phantom, cfg).residual_px)
 
 
 def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAULT_PHANTOM) -> float:
