@@ -130,7 +130,7 @@ def test_content_hash_and_provenance(tmp_path):
 def test_extract_config_defaults_and_validation():
     cfg = ExtractConfig(measure=None, registration=None)
     assert cfg.recheck_every == 150 and cfg.register_frames == 5
-    assert cfg.recheck_threshold_px(fakes.FakeRegistration(None, residual_px=1.0)) == pytest.approx(5.0)
+    assert cfg.recheck_threshold_px(fakes.FakeRegistration(None, residual_px=1.0)) == pytest.approx(2.6)
     with pytest.raises(ValueError):
         ExtractConfig(measure=None, registration=None, register_frames=0)
     with pytest.raises(ValueError):
@@ -166,7 +166,7 @@ def test_camera_bump_triggers_re_registration(tmp_path, monkeypatch):
     table, reg = extract_video(fakes.write_video(tmp_path / "b.mp4", n=24, bumped_from=12), cfg)
     regs = table.attrs["registrations"]
     assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
-    assert regs[1]["check_residual_px"] == 50.0 and regs[1]["threshold_px"] == pytest.approx(3.5)
+    assert regs[1]["check_residual_px"] == 50.0 and regs[1]["threshold_px"] == pytest.approx(1.6)
     assert [f for f, _ in table.attrs["checks"]] == [5, 10, 15, 20]
     assert table.loc[table["frame"] < 15, "reg_epoch"].eq(0).all() and table.loc[table["frame"] >= 15, "reg_epoch"].eq(1).all()
     assert len(table) == 24 and reg.pose.centre_x_px == fakes.W / 2  # the first registration is returned
