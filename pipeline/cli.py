@@ -254,8 +254,9 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
                              "or pressure_profile")
     hidden.add_argument("--strength", type=float, default=1.0, metavar="S",
                         help="size of the effect: 0 absent, 1 typical (default 1)")
-    hidden.add_argument("--dwell", type=float, default=1.0, metavar="S",
-                        help="time logged (and filmed) after the robot stops, s (default 1)")
+    hidden.add_argument("--dwell", type=float, default=None, metavar="S",
+                        help="time logged (and filmed) after the robot stops, s (default 1 with --no-video or "
+                             "--effect, else 0)")
     hidden.add_argument("--no-video", action="store_true",
                         help="force logs and angles tables only (no videos; much faster); --fps is then the "
                              "angles tables' frame rate")
@@ -275,7 +276,8 @@ def _run_render(args: argparse.Namespace) -> int:
     effect = None if args.effect.lower() in ("none", "null") else args.effect
     if effect is not None and effect not in names:
         raise UsageError(f"tympani render: unknown --effect {args.effect!r}; choose from none, {', '.join(names)}")
-    if not (0.0 <= args.strength < float("inf")) or not (0.0 <= args.dwell < float("inf")):
+    dwell = args.dwell if args.dwell is not None else (1.0 if args.no_video or effect is not None else 0.0)
+    if not (0.0 <= args.strength < float("inf")) or not (0.0 <= dwell < float("inf")):
         raise UsageError("tympani render: --strength and --dwell must be non-negative numbers")
     if args.no_video:
         import numpy as np
@@ -284,14 +286,14 @@ def _run_render(args: argparse.Namespace) -> int:
 
         synced, truth = synthetic_dataset(np.random.default_rng(args.seed), effect, strength=args.strength,
                                           speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth,
-                                          rate_hz=args.rate or 50.0, dwell_s=args.dwell, angles_fps=args.fps)
+                                          rate_hz=args.rate or 50.0, dwell_s=dwell, angles_fps=args.fps)
         manifest = write_experiment(args.out, synced, truth)
         print(f"wrote {len(manifest)} trials to {args.out} (manifest.csv, angles/, force/, truth/); hidden effect "
               f"{truth['effect'] or 'none'}, noiseless gap {truth['gap_rms_g']:.3g} g RMS vs noise {truth['noise_rms_g']:.3g} g")
         return 0
     cfg = ExperimentConfig(speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth, fps=args.fps,
                            max_frames=args.max_frames, width=args.size[0], height=args.size[1],
-                           nuisance=args.nuisance, png=args.png, dwell_s=args.dwell, effect=effect,
+                           nuisance=args.nuisance, png=args.png, dwell_s=dwell, effect=effect,
                            strength=args.strength)
     if args.rate:
         cfg = replace(cfg, sensor=replace(cfg.sensor, rate_hz=args.rate))
@@ -320,6 +322,7 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 from pipeline import force_cli as _force_cli  # noqa: E402  (cheap: argparse only; the model loads on run)
 from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: argparse only)
+from pipeline import diagnosis_cli as _diagnosis_cli  # noqa: E402  (cheap: argparse only)
 
 
 # --------------------------------------------------------------------------- registry
@@ -371,6 +374,10 @@ COMMANDS: dict[str, Command] = {
                     _sync_bounds_cli.SYNC_DESCRIPTION),
     "bounds": Command(_sync_bounds_cli.BOUNDS_HELP, _sync_bounds_cli.configure_bounds, _sync_bounds_cli.run_bounds,
                       _sync_bounds_cli.BOUNDS_DESCRIPTION),
+    "diagnose": Command(_diagnosis_cli.DIAGNOSE_HELP, _diagnosis_cli.configure_diagnose, _diagnosis_cli.run_diagnose,
+                        _diagnosis_cli.DIAGNOSE_DESCRIPTION),
+    "evaluate-diagnosis": Command(_diagnosis_cli.EVALUATE_HELP, _diagnosis_cli.configure_evaluate,
+                                  _diagnosis_cli.run_evaluate, _diagnosis_cli.EVALUATE_DESCRIPTION),
 }
 
 

@@ -363,7 +363,9 @@ def validate_synced(
     notes: list[str] = []
     for col in SYNCED_COLUMNS[1:]:
         values = pd.to_numeric(out[col], errors="coerce")
-        bad = values.isna() & out[col].notna() & (out[col].astype(str).str.strip() != "")
+        bad = values.isna() & out[col].notna()
+        if bad.any():  # only the cells that did not parse are formatted (formatting every float is slow)
+            bad &= out[col].astype(str).str.strip() != ""
         if bad.any():
             row = int(np.flatnonzero(bad.to_numpy())[0])
             raise InputError(f"{source}:{row + 2}", f"column {col} has a non-numeric value {str(out[col].iloc[row])!r}")

@@ -1,0 +1,372 @@
+"""Blind evaluation of the gap diagnosis on generated data (``tympani evaluate-diagnosis``).
+
+Each case draws a hidden effect (or none), its strength and a noise level, generates an
+experiment with :func:`pipeline.synthetic.synthetic_dataset` (hidden forms unlike the library's,
+see that module), runs :func:`pipeline.diagnosis.diagnose` on the synced table alone and scores
+the verdict against the truth. Cases are balanced over the effects (case ``i`` gets effect
+``i mod (1 + number of effects)``, ``None`` first); everything else is drawn from
+``numpy.random.SeedSequence(seed)`` spawned per case, so a case is reproducible on its own and the
+result does not depend on the number of workers.
+
+Scores
+------
+- *correct*: ``identified`` with the hidden effect, or ``no_gap`` when there is none.
+- *confident-wrong*: ``identified`` with another effect (or any effect when there is none).
+- *false identified on effect-free data*: the share of effect-free cases with ``identified``.
+- *held-out shrinkage* when the right effect is identified: ``shrink_pct`` of diagnosis.json
+  (held-out RMSE against the measured force, base -> effect; includes the noise floor) and
+  ``true_shrink_pct``, the same against the noiseless force of the generator (the gap itself).
+- *detectable*: the generator's noiseless gap RMS exceeds twice its noise RMS
+  (``truth["detectable"]``); *residually detectable*: the part of the gap the SPEC model cannot absorb
+  (:func:`residual_gap`) exceeds twice the noise RMS.
+
+A row-number column (``row_id``, not truth) is added to the table so that the held-out
+predictions can be compared with the generator's noiseless force afterwards.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .diagnosis import DiagnosisConfig, diagnose
+
+__all__ = ["EvalConfig", "CaseSpec", "case_specs", "run_case", "evaluate", "summarise", "format_evaluation",
+           "NOISE_LEVELS", "VERDICT_COLUMNS"]
+
+#: Noise levels: factor on the generator's default sensor noise (white, AR(1), tare).
+NOISE_LEVELS: dict[str, float] = {"low": 0.5, "nominal": 1.0, "high": 3.0}
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What the blind evaluation generates.
+
+    Parameters
+    ----------
+    effects : tuple of str or None
+        Hidden effects cycled over the cases (None: no effect).
+    strength_range : tuple of float
+        Range of the effect strength (dimensionless, 1 = typical), drawn log-uniformly.
+    noise_levels : mapping of str to float
+        Named factors on :class:`pipeline.synthetic.NoiseConfig`'s white, AR and tare noise.
+    speeds_mm_s : tuple of float
+        Insertion speeds (mm/s).
+    trials : int
+        Repeats per speed.
+    diagnosis : DiagnosisConfig
+        The diagnosis' settings (frozen thresholds by default).
+    keep_errors : bool
+        Keep each case's per-trial held-out errors (columns starting with ``_``; for studying decision
+        rules, not written to files).
+    """
+
+    effects: tuple[str | None, ...] = (None, "hydrodynamic_lift", "viscous_drag", "capstan", "sensor_lag",
+                                      "sensor_drift", "pressure_profile")
+    strength_range: tuple[float, float] = (0.3, 2.0)
+    noise_levels: Mapping[str, float] = field(default_factory=lambda: dict(NOISE_LEVELS))
+    speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
+    trials: int = 10
+    diagnosis: DiagnosisConfig = field(default_factory=lambda: DiagnosisConfig(bootstrap=500))
+    keep_errors: bool = False
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """One blind case.
+
+    Parameters
+    ----------
+    index : int
+        Case number.
+    effect : str or None
+        Hidden effect.
+    strength : float
+        Its strength (dimensionless).
+    noise_level : str
+        Name of the noise level.
+    entropy : tuple of int
+        Seed material of the case's generator (from ``SeedSequence.spawn``).
+    """
+
+    index: int
+    effect: str | None
+    strength: float
+    noise_level: str
+    entropy: tuple[int, ...]
+
+
+def case_specs(cases: int, seed: int, config: EvalConfig = EvalConfig()) -> list[CaseSpec]:
+    """The cases of an evaluation (balanced over effects, seeded).
+
+    Parameters
+    ----------
+    cases : int
+        Number of cases.
+    seed : int
+        Seed of the whole evaluation.
+    config : EvalConfig
+    """
+    root = np.random.SeedSequence(seed)
+    children = root.spawn(cases)
+    levels = list(config.noise_levels)
+    out = []
+    lo, hi = config.strength_range
+    for i, child in enumerate(children):
+        rng = np.random.default_rng(child.spawn(1)[0])
+        effect = config.effects[i % len(config.effects)]
+        strength = float(math.exp(rng.uniform(math.log(lo), math.log(hi)))) if effect is not None else 0.0
+        out.append(CaseSpec(i, effect, strength, levels[int(rng.integers(len(levels)))],
+                            tuple(int(v) for v in child.generate_state(4))))
+    return out
+
+
+def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
+    """Generate one case, diagnose it blind, score it.
+
+    Parameters
+    ----------
+    spec : CaseSpec
+    config : EvalConfig
+
+    Returns
+    -------
+    dict
+        The spec, the truth (``gap_to_noise``, ``detectable``, ``gap_rms_g``, ``noise_rms_g``), the
+        verdict (``verdict``, ``effect_found``, ``tied``, ``leader``), scores (``correct``,
+        ``confident_wrong``), shrinkages (``shrink_pct``, ``true_shrink_pct``), the share of the
+        peak drop explained and timings (s); ``error`` if the diagnosis failed.
+    """
+    from .synthetic import NoiseConfig, synthetic_dataset
+
+    factor = config.noise_levels[spec.noise_level]
+    base_noise = NoiseConfig()
+    noise = replace(base_noise, white_g=base_noise.white_g * factor, ar_g=base_noise.ar_g * factor,
+                    tare_sd_g=base_noise.tare_sd_g * factor)
+    rng = np.random.default_rng(np.random.SeedSequence(list(spec.entropy)))
+    t0 = time.perf_counter()
+    synced, truth = synthetic_dataset(rng, spec.effect, strength=spec.strength if spec.effect else 1.0,
+                                      speeds_mm_s=config.speeds_mm_s, trials=config.trials, noise=noise)
+    t_gen = time.perf_counter() - t0
+    clean = truth["tables"]["clean"]["force_effect_g"].to_numpy(float)
+    table = synced.assign(row_id=np.arange(len(synced)))
+    out = dict(case=spec.index, effect=spec.effect or "none", strength=spec.strength, noise_level=spec.noise_level,
+               gap_to_noise=float(truth["gap_to_noise"]) if spec.effect else 0.0,
+               detectable=bool(truth["detectable"]) if spec.effect else False,
+               gap_rms_g=float(truth["gap_rms_g"]), noise_rms_g=float(truth["noise_rms_g"]), generate_s=t_gen)
+    try:
+        d = diagnose(table, config.diagnosis)
+    except Exception as exc:  # a failed case is reported, not fatal to the evaluation
+        out.update(verdict="error", effect_found=None, error=f"{type(exc).__name__}: {exc}", correct=False,
+                   confident_wrong=False, tied="", leader=None, shrink_pct=float("nan"),
+                   true_shrink_pct=float("nan"), peak_explained=float("nan"), diagnose_s=float("nan"))
+        return out
+    idx = d.data.rows["row_id"].to_numpy(int)
+    truth_rows = clean[idx]
+    base_rows = truth["tables"]["clean"]["force_base_g"].to_numpy(float)[idx]
+    resid_gap = residual_gap(d.data, truth_rows, base_rows, config.diagnosis) if spec.effect else 0.0
+    leader = d.decision["effect"] or d.decision["leader"]
+
+    def true_rmse(name: str) -> float:
+        return float(np.sqrt(np.mean((d.heldout[name] - truth_rows) ** 2)))
+
+    rb, re_ = true_rmse("base"), true_rmse(leader)
+    truth_effect = spec.effect
+    found = d.effect
+    out.update(
+        verdict=d.verdict, effect_found=found, tied=",".join(d.decision["tied"]), leader=d.decision["leader"],
+        reference=d.decision["reference"],
+        correct=bool((truth_effect is None and d.verdict == "no_gap") or (truth_effect is not None and found == truth_effect)),
+        confident_wrong=bool(d.verdict == "identified" and found != truth_effect),
+        ambiguous_includes_truth=bool(d.verdict == "ambiguous" and truth_effect in d.decision["tied"]),
+        residual_gap_g=resid_gap, residual_gap_to_noise=resid_gap / out["noise_rms_g"] if out["noise_rms_g"] > 0 else 0.0,
+        shrink_pct=float(d.gap["shrink_pct"]), true_shrink_pct=float(100 * (1 - re_ / rb)) if rb > 0 else float("nan"),
+        true_rmse_base_g=rb, true_rmse_effect_g=re_, gain_lo=float(d.decision["gain_lo"][d.decision["leader"]]),
+        lof_p=float(max(d.lof["base"]["p_value"], d.lof["control"]["p_value"])),
+        peak_explained=float(d.peak_drop["explained_frac_fastest"]), diagnose_s=float(d.timing_s), error="",
+    )
+    if config.keep_errors:  # per-trial held-out errors, to study decision rules afterwards
+        from .diagnosis import _trial_sse
+
+        names = list(d.fits)
+        out["_names"] = names
+        out["_sse"] = np.column_stack([_trial_sse(d.data, d.data.y - d.heldout[nm])[0] for nm in names])
+        out["_n"] = _trial_sse(d.data, d.data.y)[1]
+        out["_trial_speed"] = d.data.trial_speed
+        out["_lof"] = {k: (v["p_value"], v.get("level", v)["p_value"], v.get("shape", v)["p_value"])
+                       for k, v in d.lof.items()}
+    return out
+
+
+def residual_gap(ds, clean_g: np.ndarray, base_g: np.ndarray, config: DiagnosisConfig) -> float:
+    """The part (RMS, g) of a hidden effect that the SPEC model cannot absorb.
+
+    The control (friction law re-identified, trial gains) is fitted to the noiseless force with the
+    effect and to the noiseless force without it (same trials); the result is
+    ``sqrt(max(MSE_with - MSE_without, 0))``: what is left by the effect beyond what the model leaves
+    anyway (angle noise, the random mean placement scale of each speed).
+
+    Parameters
+    ----------
+    ds : pipeline.diagnosis.Prepared
+        The rows diagnosed.
+    clean_g, base_g : ndarray
+        The generator's noiseless force with and without the effect (g) on those rows.
+    config : DiagnosisConfig
+    """
+    from dataclasses import replace as _replace
+
+    from .diagnosis import candidates, fit_candidate
+
+    control = next(c for c in candidates(()) if c.name == "control")
+    mse = []
+    for y in (clean_g, base_g):
+        fit = fit_candidate(_replace(ds, y=np.asarray(y, dtype=float)), control, config=config,
+                            rng=np.random.default_rng(0))
+        mse.append(fit.rss / fit.n)
+    return float(math.sqrt(max(mse[0] - mse[1], 0.0)))
+
+
+def _run(args: tuple[CaseSpec, EvalConfig]) -> dict:
+    return run_case(*args)
+
+
+def evaluate(cases: int, seed: int, *, workers: int = 1, config: EvalConfig = EvalConfig(),
+             progress: bool = False) -> pd.DataFrame:
+    """Run a blind evaluation.
+
+    Parameters
+    ----------
+    cases : int
+        Number of cases (spread evenly over ``config.effects``).
+    seed : int
+        Seed of the evaluation.
+    workers : int
+        Worker processes (1: in this process).
+    config : EvalConfig
+    progress : bool
+        Print one line per finished case to stderr.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case (:func:`run_case`), in case order.
+    """
+    import sys
+
+    specs = case_specs(cases, seed, config)
+    rows = []
+    if workers <= 1:
+        it = (run_case(s, config) for s in specs)
+        for r in it:
+            rows.append(r)
+            if progress:
+                print(f"case {r['case']}: {r['effect']} -> {r['verdict']} {r['effect_found'] or ''}", file=sys.stderr)
+    else:
+        import multiprocessing as mp
+        import os
+
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")  # one BLAS thread per worker: the workers are the parallelism
+        ctx = mp.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            for r in pool.map(_run, [(s, config) for s in specs], chunksize=1):
+                rows.append(r)
+                if progress:
+                    print(f"case {r['case']}: {r['effect']} -> {r['verdict']} {r['effect_found'] or ''}", file=sys.stderr)
+    return pd.DataFrame(rows).sort_values("case").reset_index(drop=True)
+
+
+VERDICT_COLUMNS = ("hydrodynamic_lift", "viscous_drag", "capstan", "sensor_lag", "sensor_drift", "pressure_profile",
+                   "ambiguous", "no_gap")
+
+
+def summarise(results: pd.DataFrame) -> dict:
+    """Confusion matrix and rates of an evaluation.
+
+    Parameters
+    ----------
+    results : pandas.DataFrame
+        From :func:`evaluate`.
+
+    Returns
+    -------
+    dict
+        ``confusion`` (DataFrame: true effect x predicted, with ``ambiguous`` and ``no_gap``
+        columns), ``by_effect`` and ``by_noise`` (DataFrames: cases, accuracy, accuracy on
+        detectable cases, confident-wrong rate, ambiguous rate), ``accuracy``,
+        ``accuracy_detectable``, ``confident_wrong_rate`` (over all cases), ``false_identified_rate``
+        (effect-free cases), ``median_shrink_pct`` and ``median_true_shrink_pct`` (right effect
+        identified), ``median_diagnose_s``, ``errors``.
+    """
+    r = results.copy()
+    r["predicted"] = np.where(r["verdict"] == "identified", r["effect_found"].fillna(""), r["verdict"])
+    rows = [e for e in ["none", *VERDICT_COLUMNS[:6]] if e in set(r["effect"])]
+    cols = [c for c in VERDICT_COLUMNS] + (["error"] if (r["verdict"] == "error").any() else [])
+    confusion = pd.crosstab(r["effect"], r["predicted"]).reindex(index=rows, columns=cols, fill_value=0)
+
+    def block(g: pd.DataFrame) -> dict:
+        det = g[g["detectable"] | (g["effect"] == "none")]
+        return dict(cases=len(g), accuracy=float(g["correct"].mean()) if len(g) else float("nan"),
+                    detectable_cases=len(det),
+                    accuracy_detectable=float(det["correct"].mean()) if len(det) else float("nan"),
+                    confident_wrong=float(g["confident_wrong"].mean()) if len(g) else float("nan"),
+                    ambiguous=float((g["verdict"] == "ambiguous").mean()) if len(g) else float("nan"),
+                    no_gap=float((g["verdict"] == "no_gap").mean()) if len(g) else float("nan"))
+
+    by_effect = pd.DataFrame({e: block(g) for e, g in r.groupby("effect")}).T.reindex(rows)
+    by_noise = pd.DataFrame({n: block(g) for n, g in r.groupby("noise_level")}).T
+    none = r[r["effect"] == "none"]
+    right = r[(r["effect"] != "none") & r["correct"]]
+    det = r[r["detectable"] | (r["effect"] == "none")]
+    return dict(
+        confusion=confusion, by_effect=by_effect, by_noise=by_noise, cases=len(r),
+        accuracy=float(r["correct"].mean()), accuracy_detectable=float(det["correct"].mean()) if len(det) else float("nan"),
+        accuracy_detectable_effects=float(det[det["effect"] != "none"]["correct"].mean())
+        if (det["effect"] != "none").any() else float("nan"),
+        confident_wrong_rate=float(r["confident_wrong"].mean()),
+        false_identified_rate=float((none["verdict"] == "identified").mean()) if len(none) else float("nan"),
+        median_shrink_pct=float(right["shrink_pct"].median()) if len(right) else float("nan"),
+        median_true_shrink_pct=float(right["true_shrink_pct"].median()) if len(right) else float("nan"),
+        median_diagnose_s=float(r["diagnose_s"].median()), errors=int((r["verdict"] == "error").sum()),
+    )
+
+
+def format_evaluation(summary: dict) -> str:
+    """The evaluation as text (confusion matrix, accuracies, rates)."""
+    short = {"hydrodynamic_lift": "lift", "viscous_drag": "drag", "capstan": "capstan", "sensor_lag": "lag",
+             "sensor_drift": "drift", "pressure_profile": "profile", "ambiguous": "ambig", "no_gap": "no_gap",
+             "none": "none", "error": "error"}
+    conf = summary["confusion"].rename(index=short, columns=short)
+    lines = [f"blind evaluation: {summary['cases']} cases", "", "confusion matrix (rows: hidden effect; columns: verdict)",
+             conf.to_string(), ""]
+    fmt = lambda v: "  -  " if v != v else f"{v:5.2f}"  # noqa: E731
+    lines.append(f"{'effect':<10}{'cases':>6}{'acc':>7}{'det':>5}{'acc_det':>8}{'wrong':>7}{'ambig':>7}{'no_gap':>7}")
+    for name, row in summary["by_effect"].iterrows():
+        lines.append(f"{short.get(name, name):<10}{int(row['cases']):>6}{fmt(row['accuracy']):>7}{int(row['detectable_cases']):>5}"
+                     f"{fmt(row['accuracy_detectable']):>8}{fmt(row['confident_wrong']):>7}{fmt(row['ambiguous']):>7}"
+                     f"{fmt(row['no_gap']):>7}")
+    lines.append("")
+    lines.append(f"{'noise':<10}{'cases':>6}{'acc':>7}{'det':>5}{'acc_det':>8}{'wrong':>7}{'ambig':>7}{'no_gap':>7}")
+    for name, row in summary["by_noise"].iterrows():
+        lines.append(f"{name:<10}{int(row['cases']):>6}{fmt(row['accuracy']):>7}{int(row['detectable_cases']):>5}"
+                     f"{fmt(row['accuracy_detectable']):>8}{fmt(row['confident_wrong']):>7}{fmt(row['ambiguous']):>7}"
+                     f"{fmt(row['no_gap']):>7}")
+    lines += [
+        "",
+        f"accuracy {summary['accuracy']:.3f}; on detectable cases (gap > 2 x noise, and effect-free) "
+        f"{summary['accuracy_detectable']:.3f} (effects only {summary['accuracy_detectable_effects']:.3f})",
+        f"confident-wrong rate {summary['confident_wrong_rate']:.3f}; false 'identified' on effect-free data "
+        f"{summary['false_identified_rate']:.3f}",
+        f"median held-out shrinkage when the right effect is identified: {summary['median_shrink_pct']:.1f} % of the RMSE "
+        f"against the measured force, {summary['median_true_shrink_pct']:.1f} % against the noiseless force",
+        f"median time per diagnosis {summary['median_diagnose_s']:.2f} s" + (f"; {summary['errors']} case(s) failed"
+                                                                             if summary["errors"] else ""),
+    ]
+    return "\n".join(lines)
