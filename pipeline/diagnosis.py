@@ -119,7 +119,11 @@ __all__ = [
     "fit_candidate",
     "predict",
     "heldout_predictions",
+    "kernel",
+    "KERNEL_FORMS",
+    "ArcQuadrature",
     "lag_foh",
+    "dead_time",
     "lack_of_fit",
     "systematic_gap",
     "where_is_the_gap",
@@ -165,6 +169,9 @@ class DiagnosisConfig:
         Fit a per-trial gain on the contact force (mean per speed within its random range of 1).
     gain_bounds : tuple of float
         Bounds of a trial gain (dimensionless).
+    level_sd : float
+        A speed's mean gain may differ from 1 by up to ``level_sd`` standard errors of a mean of its
+        trials' placement scales (dimensionless; 0 pins it at 1).
     starts : int
         Starts of each non-linear fit to all speeds (the first at the defaults, the rest random,
         seeded); held-out fits start from the fit to all speeds.
@@ -197,6 +204,7 @@ class DiagnosisConfig:
     friction: FrictionParams = field(default_factory=FrictionParams)
     trial_gain: bool = True
     gain_bounds: tuple[float, float] = (0.5, 1.5)
+    level_sd: float = 2.0
     starts: int = 2
     bootstrap: int = 1000
     seed: int = 0
@@ -844,14 +852,15 @@ def _nnls(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _trial_gains(p: np.ndarray, target: np.ndarray, trial: np.ndarray, ds: Prepared, bounds: tuple[float, float],
-                 present: np.ndarray, normalise: bool = True, scatter: float | None = None) -> np.ndarray:
+                 present: np.ndarray, normalise: bool = True, scatter: float | None = None,
+                 level_sd: float = 2.0) -> np.ndarray:
     """Least-squares gain per trial of ``p`` towards ``target``, clipped to ``bounds``; 1 for trials
     without contact force.
 
     With ``normalise``, each speed's mean gain over the trials ``present`` is kept within
-    ``±2 scatter / sqrt(n)`` of 1: a speed's mean placement scale is as random as that (``scatter``
-    is the between-trial SD of the gains, by default the pooled within-speed SD of these), and any
-    larger level change is left for the model to explain.
+    ``±level_sd scatter / sqrt(n)`` of 1: a speed's mean placement scale is as random as that
+    (``scatter`` is the between-trial SD of the gains, by default the pooled within-speed SD of
+    these), and any larger level change is left for the model to explain.
     """
     num = np.bincount(trial, weights=p * target, minlength=ds.n_trials)
     den = np.bincount(trial, weights=p * p, minlength=ds.n_trials)
@@ -860,24 +869,25 @@ def _trial_gains(p: np.ndarray, target: np.ndarray, trial: np.ndarray, ds: Prepa
     g = np.clip(g, *bounds)
     if not normalise:
         return g
-    return _bounded_levels(g, present, ds, _gain_scatter(np.where(present, g, np.nan), ds) if scatter is None
-                           else scatter)
+    sd = _gain_scatter(np.where(present, g, np.nan), ds) if scatter is None else scatter
+    return _bounded_levels(g, present, ds, level_sd * sd)
 
 
 def _bounded_levels(g: np.ndarray, present: np.ndarray, ds: Prepared, scatter: float) -> np.ndarray:
-    """Gains whose mean per speed (over ``present`` trials) is moved to within ``±2 scatter / sqrt(n)``
+    """Gains whose mean per speed (over ``present`` trials) is moved to within ``±scatter / sqrt(n)``
     of 1, keeping their ratios."""
-    g = g.copy()
-    for k in np.unique(ds.trial_speed_idx[present]):
-        sel = present & (ds.trial_speed_idx == k)
-        level = float(np.mean(g[sel]))
-        allowed = 2.0 * scatter / math.sqrt(int(sel.sum()))
-        g[sel] *= (1.0 + float(np.clip(level - 1.0, -allowed, allowed))) / level
-    return g
+    k = ds.trial_speed_idx
+    m = len(ds.speeds)
+    count = np.bincount(k[present], minlength=m).astype(float)
+    level = np.bincount(k[present], weights=g[present], minlength=m) / np.maximum(count, 1.0)
+    allowed = scatter / np.sqrt(np.maximum(count, 1.0))
+    factor = np.where(count > 0, (1.0 + np.clip(level - 1.0, -allowed, allowed)) / np.where(level > 0, level, 1.0), 1.0)
+    return np.where(present, g * factor[k], g)
 
 
 def _solve(design: _Design, ds: Prepared, rows: np.ndarray | None, use_gain: bool,
-           bounds: tuple[float, float], iterations: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           bounds: tuple[float, float], iterations: int = 3,
+           level_sd: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coefficients, trial gains and residuals (model - measured, g) on ``rows`` (None: all).
 
     Alternates non-negative least squares for the coefficients with per-trial gains.
@@ -895,7 +905,7 @@ def _solve(design: _Design, ds: Prepared, rows: np.ndarray | None, use_gain: boo
         if not use_gain or it == iterations:
             break
         p = ag @ coef[:kg]
-        g = _trial_gains(p, y - af @ coef[kg:], tr, ds, bounds, present)
+        g = _trial_gains(p, y - af @ coef[kg:], tr, ds, bounds, present, level_sd=level_sd)
     r = (ag @ coef[:kg]) * g[tr] + af @ coef[kg:] - y
     g = np.where(present, g, np.nan)
     return coef, g, r
@@ -998,7 +1008,8 @@ def _start_points(ds: Prepared, cand: Candidate, rows: np.ndarray | None, config
 def _residual(x: np.ndarray, ds: Prepared, cand: Candidate, rows: np.ndarray | None,
               config: DiagnosisConfig) -> np.ndarray:
     """Variable-projection residual (model - measured, g) on ``rows`` (None: all)."""
-    return _solve(_design(ds, cand, x, config.friction), ds, rows, config.trial_gain, config.gain_bounds)[2]
+    return _solve(_design(ds, cand, x, config.friction), ds, rows, config.trial_gain, config.gain_bounds,
+                  level_sd=config.level_sd)[2]
 
 
 def fit_candidate(
@@ -1048,7 +1059,8 @@ def fit_candidate(
             if best is None or res.cost < best.cost:
                 best = res
         x = np.asarray(best.x, float)
-    coef, gain, r = _solve(_design(ds, cand, x, config.friction), ds, rows, config.trial_gain, config.gain_bounds)
+    coef, gain, r = _solve(_design(ds, cand, x, config.friction), ds, rows, config.trial_gain, config.gain_bounds,
+                           level_sd=config.level_sd)
     return CandidateFit(cand, x, coef, gain, float(r @ r), len(r), nfev, config.friction)
 
 
@@ -1092,7 +1104,7 @@ def predict(ds: Prepared, fit: CandidateFit, *, trials: np.ndarray | None = None
         # relative gains from the trials' own rows; the speed's level within the random range of
         # the fit's placement scatter
         new = _trial_gains(p[rows], (ds.y - add)[rows], ds.trial[rows], ds, config.gain_bounds, redo,
-                           scatter=_gain_scatter(fit.gain, ds))
+                           scatter=_gain_scatter(fit.gain, ds), level_sd=config.level_sd)
         g = np.where(redo, new, g)
     return p * g[ds.trial] + add
 
@@ -1104,8 +1116,11 @@ def _gain_scatter(gain: np.ndarray, ds: Prepared) -> float:
         return 0.0
     g = gain[ok]
     k = ds.trial_speed_idx[ok]
-    dev = g - np.array([g[k == j].mean() for j in k])
-    dof = max(int(ok.sum()) - len(np.unique(k)), 1)
+    m = len(ds.speeds)
+    count = np.bincount(k, minlength=m)
+    mean = np.bincount(k, weights=g, minlength=m) / np.maximum(count, 1)
+    dev = g - mean[k]
+    dof = max(int(ok.sum()) - int(np.count_nonzero(count)), 1)
     return float(math.sqrt(np.sum(dev**2) / dof))
 
 
@@ -1480,9 +1495,14 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
     elif len(tied) == 1:
         verdict, effect = "identified", leader
         runner = min(sep_lo, key=lambda e: mse[e]) if sep_lo else None
+        if runner is None:
+            tail = ""
+        elif sep_lo[runner] >= 1.0:
+            tail = f"; the runner-up {runner} does no better than the {ref}"
+        else:
+            tail = f"; the runner-up {runner} misses at least {100 * sep_lo[runner]:.0f} % of that gain"
         reason = (f"{leader} removes {100 * gain[leader]:.0f} % of the {ref}'s held-out error (lower bound "
-                  f"{100 * gain_lo[leader]:.0f} %)"
-                  + (f"; the runner-up {runner} misses at least {100 * sep_lo[runner]:.0f} % of that gain" if runner else ""))
+                  f"{100 * gain_lo[leader]:.0f} %){tail}")
     else:
         verdict, effect = "ambiguous", None
         reason = (f"{', '.join(tied)} explain the gap about equally well on held-out speeds (none misses "
@@ -1757,7 +1777,12 @@ def diagnose(
     gap = _gap(ds, held, held_shared, draws, mse, weights, sse, n_tr, names, leader, config)
     where = where_is_the_gap(ds, ds.y - held_shared["base"], held_shared["base"], theta_bins=config.theta_bins)
     ident = {e: _identifiability(ds, fits[e], folds[e], config) for e in effects}
-    drops = _peak_drop_summary(ds, fitted, held, leader)
+    pinned = replace(config, level_sd=0.0)  # each speed's level pinned: the models' own drop
+    pinned_fits = {nm: fit_candidate(ds, next(c for c in cands if c.name == nm), config=pinned,
+                                     start=fits[nm].x if len(fits[nm].x) else None)
+                   for nm in dict.fromkeys(("base", leader))}
+    drops = _peak_drop_summary(ds, {nm: predict(ds, f, config=pinned, gains=False) for nm, f in pinned_fits.items()},
+                               held_shared, leader)
     from .diagnosis_experiments import splitting_experiments
 
     if decision["verdict"] == "ambiguous":
@@ -1807,6 +1832,9 @@ def _gap(ds, held, held_shared, draws, mse, weights, sse, n_tr, names, leader, c
 
 
 def _peak_drop_summary(ds: Prepared, fitted: dict, held: dict, leader: str) -> dict:
+    """Measured and modelled peak-force drops. The models are fits with each speed's placement level
+    pinned at 1 (``level_sd = 0``), predicted with gain 1: the drop is the model's own, not a speed's
+    random placement level; the held-out column uses the diagnosis' held-out predictions (gain 1)."""
     data = peak_drop(ds, ds.y)
     base = peak_drop(ds, fitted["base"])
     eff = peak_drop(ds, fitted[leader])
@@ -1815,16 +1843,19 @@ def _peak_drop_summary(ds: Prepared, fitted: dict, held: dict, leader: str) -> d
     for v in ds.speeds[1:]:
         v = float(v)
         need = data[v] - base[v]
+        meaningful = abs(need) > 0.02  # a share of less than 2 points of drop is a ratio of noise
         rows.append(dict(speed_mm_s=v, measured_pct=100 * data[v], base_pct=100 * base[v], with_effect_pct=100 * eff[v],
                          with_effect_heldout_pct=100 * eff_h[v],
-                         explained_frac=float((eff[v] - base[v]) / need) if abs(need) > 1e-9 else float("nan"),
-                         explained_heldout_frac=float((eff_h[v] - base[v]) / need) if abs(need) > 1e-9 else float("nan")))
+                         explained_frac=float((eff[v] - base[v]) / need) if meaningful else float("nan"),
+                         explained_heldout_frac=float((eff_h[v] - base[v]) / need) if meaningful else float("nan")))
     last = rows[-1] if rows else {}
     return dict(effect=leader, reference_speed_mm_s=float(ds.speeds[0]), by_speed=rows,
                 explained_frac_fastest=last.get("explained_frac", float("nan")),
                 explained_heldout_frac_fastest=last.get("explained_heldout_frac", float("nan")),
                 definition="drop = 1 - mean peak(v) / mean peak(slowest); a trial's peak is the maximum of a 3-row "
-                           "running mean; explained = (drop with effect - drop of base) / (measured - base)")
+                           "running mean; models: fits with each speed's placement level pinned, gain 1; explained = (drop with "
+                           "effect - drop of base) / (measured - base), not given when measured and base drops differ "
+                           "by less than 2 points")
 
 
 # --------------------------------------------------------------------------- JSON

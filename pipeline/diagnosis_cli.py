@@ -7,7 +7,6 @@ Importing this module is cheap (argparse only); the diagnosis loads when a comma
 from __future__ import annotations
 
 import argparse
-import sys
 
 __all__ = [
     "configure_diagnose",

@@ -30,7 +30,7 @@ import math
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -301,9 +301,13 @@ def summarise(results: pd.DataFrame) -> dict:
         ``confusion`` (DataFrame: true effect x predicted, with ``ambiguous`` and ``no_gap``
         columns), ``by_effect`` and ``by_noise`` (DataFrames: cases, accuracy, accuracy on
         detectable cases, confident-wrong rate, ambiguous rate), ``accuracy``,
-        ``accuracy_detectable``, ``confident_wrong_rate`` (over all cases), ``false_identified_rate``
-        (effect-free cases), ``median_shrink_pct`` and ``median_true_shrink_pct`` (right effect
-        identified), ``median_diagnose_s``, ``errors``.
+        ``accuracy_detectable``, ``accuracy_residual_detectable`` (effects whose unabsorbable gap,
+        :func:`residual_gap`, exceeds twice the noise), ``confident_wrong_rate`` (over all cases),
+        ``false_identified_rate`` (effect-free cases), ``median_shrink_pct`` (against the measured
+        force), ``median_true_shrink_pct`` (against the noiseless force) and
+        ``median_gap_shrink_pct`` (the same above the effect-free floor ``floor_g`` per noise level:
+        ``1 - sqrt(E_eff^2 - F^2) / sqrt(E_base^2 - F^2)``), all when the right effect is identified,
+        ``shrink_by_effect``, ``median_diagnose_s``, ``errors``.
     """
     r = results.copy()
     r["predicted"] = np.where(r["verdict"] == "identified", r["effect_found"].fillna(""), r["verdict"])
@@ -323,7 +327,18 @@ def summarise(results: pd.DataFrame) -> dict:
     by_effect = pd.DataFrame({e: block(g) for e, g in r.groupby("effect")}).T.reindex(rows)
     by_noise = pd.DataFrame({n: block(g) for n, g in r.groupby("noise_level")}).T
     none = r[r["effect"] == "none"]
-    right = r[(r["effect"] != "none") & r["correct"]]
+    right = r[(r["effect"] != "none") & r["correct"]].copy()
+    # floor: the held-out error against the noiseless force that the base model has without any effect
+    # (angle noise, each speed's random mean placement scale), per noise level, from this evaluation
+    floor = none.groupby("noise_level")["true_rmse_base_g"].median() if "true_rmse_base_g" in r else pd.Series(dtype=float)
+    if len(right) and len(floor):
+        f = right["noise_level"].map(floor).fillna(float(floor.median())).to_numpy(float)
+        eb = np.sqrt(np.maximum(right["true_rmse_base_g"].to_numpy(float) ** 2 - f**2, 1e-12))
+        ee = np.sqrt(np.maximum(right["true_rmse_effect_g"].to_numpy(float) ** 2 - f**2, 0.0))
+        right["gap_shrink_pct"] = 100 * (1 - ee / eb)
+    else:
+        right["gap_shrink_pct"] = np.nan
+    rdet = r[(r["effect"] != "none") & (r.get("residual_gap_to_noise", 0) > 2)]
     det = r[r["detectable"] | (r["effect"] == "none")]
     return dict(
         confusion=confusion, by_effect=by_effect, by_noise=by_noise, cases=len(r),
@@ -334,6 +349,11 @@ def summarise(results: pd.DataFrame) -> dict:
         false_identified_rate=float((none["verdict"] == "identified").mean()) if len(none) else float("nan"),
         median_shrink_pct=float(right["shrink_pct"].median()) if len(right) else float("nan"),
         median_true_shrink_pct=float(right["true_shrink_pct"].median()) if len(right) else float("nan"),
+        median_gap_shrink_pct=float(right["gap_shrink_pct"].median()) if len(right) else float("nan"),
+        shrink_by_effect=right.groupby("effect")[["shrink_pct", "true_shrink_pct", "gap_shrink_pct"]].median(),
+        floor_g=floor.to_dict(),
+        accuracy_residual_detectable=float(rdet["correct"].mean()) if len(rdet) else float("nan"),
+        residual_detectable_cases=int(len(rdet)),
         median_diagnose_s=float(r["diagnose_s"].median()), errors=int((r["verdict"] == "error").sum()),
     )
 
@@ -353,6 +373,12 @@ def format_evaluation(summary: dict) -> str:
                      f"{fmt(row['accuracy_detectable']):>8}{fmt(row['confident_wrong']):>7}{fmt(row['ambiguous']):>7}"
                      f"{fmt(row['no_gap']):>7}")
     lines.append("")
+    if len(summary.get("shrink_by_effect", [])):
+        lines.append("median shrinkage (%) when identified: measured / noiseless / gap above floor")
+        for name, row in summary["shrink_by_effect"].iterrows():
+            lines.append(f"  {short.get(name, name):<10}{row['shrink_pct']:6.1f}{row['true_shrink_pct']:8.1f}"
+                         f"{row['gap_shrink_pct']:8.1f}")
+        lines.append("")
     lines.append(f"{'noise':<10}{'cases':>6}{'acc':>7}{'det':>5}{'acc_det':>8}{'wrong':>7}{'ambig':>7}{'no_gap':>7}")
     for name, row in summary["by_noise"].iterrows():
         lines.append(f"{name:<10}{int(row['cases']):>6}{fmt(row['accuracy']):>7}{int(row['detectable_cases']):>5}"
@@ -364,8 +390,12 @@ def format_evaluation(summary: dict) -> str:
         f"{summary['accuracy_detectable']:.3f} (effects only {summary['accuracy_detectable_effects']:.3f})",
         f"confident-wrong rate {summary['confident_wrong_rate']:.3f}; false 'identified' on effect-free data "
         f"{summary['false_identified_rate']:.3f}",
+        f"accuracy on effects whose unabsorbable gap exceeds 2 x noise: {summary['accuracy_residual_detectable']:.3f} "
+        f"({summary['residual_detectable_cases']} cases)",
         f"median held-out shrinkage when the right effect is identified: {summary['median_shrink_pct']:.1f} % of the RMSE "
-        f"against the measured force, {summary['median_true_shrink_pct']:.1f} % against the noiseless force",
+        f"against the measured force, {summary['median_true_shrink_pct']:.1f} % against the noiseless force, "
+        f"{summary['median_gap_shrink_pct']:.1f} % of the gap above the effect-free floor "
+        f"({', '.join(f'{k} {v:.3f} g' for k, v in summary['floor_g'].items())})",
         f"median time per diagnosis {summary['median_diagnose_s']:.2f} s" + (f"; {summary['errors']} case(s) failed"
                                                                              if summary["errors"] else ""),
     ]

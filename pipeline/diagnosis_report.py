@@ -71,7 +71,7 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
     verdict = {"identified": f"**identified: `{diag.effect}`**",
                "ambiguous": f"**ambiguous** between {', '.join(f'`{e}`' for e in dec['tied'])}",
                "no_gap": "**no gap**"}[diag.verdict]
-    lines += [f"Verdict: {verdict}. {dec['reason'][0].upper() + dec['reason'][1:]}.", ""]
+    lines += [f"Verdict: {verdict}: {dec['reason']}.", ""]
 
     lines += ["## Is there a gap?", ""]
     ref = dec["reference"]
@@ -165,12 +165,13 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
     lines.append("")
     lines += ["## Method", "",
               "Candidates: base (SPEC §4 with the nominal friction law, pressures identified), control (friction law "
-              "re-identified), base + each SPEC §5 effect in the library's form; each with a per-trial gain on the "
+              "re-identified), base + each SPEC §5 effect in the forms above (the library's, generalised where noted); "
+              "each with a per-trial gain on the "
               "contact force (mean per speed within ±2 sd/sqrt(n) of 1). Fitted by variable projection on "
               f"{diag.config.rows_per_trial} rows per trial. Decision thresholds: effect must remove more than "
               f"{100 * diag.config.min_gain:.0f} % of the held-out MSE of base and control, the runner-up must miss more "
               f"than {100 * diag.config.min_separation:.0f} % of the leader's gain (both at one-sided level "
-              f"{diag.config.alpha:g} of a {diag.config.bootstrap}-draw bootstrap over trials), and the reference must "
+              f"{diag.config.alpha:g} of a {diag.config.bootstrap}-draw bootstrap over trials), and the base model must "
               f"fail the lack-of-fit test at {diag.config.lof_alpha:g}. See `pipeline/diagnosis.py`.", ""]
     return "\n".join(lines)
 
