@@ -20,6 +20,7 @@ import traceback
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
+from pipeline.argtypes import int_list, nonneg_int, positive_float, positive_int, speed_list
 from vision.errors import InputError, is_input_error
 
 __all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
@@ -61,51 +62,11 @@ class Command:
 # --------------------------------------------------------------------------- helpers
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
-    return value
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, not {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
-    return value
-
-
-def _int_list(text: str) -> list[int]:
-    try:
-        values = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated frame numbers, got {text!r}") from None
-    if not values or any(v < 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected frame numbers >= 0, got {text!r}")
-    return values
-
-
 def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("registration")
-    group.add_argument("--recheck-every", type=_nonneg_int, default=150, metavar="N",
+    group.add_argument("--recheck-every", type=nonneg_int, default=150, metavar="N",
                        help="check the registration every N frames, re-register if the camera moved (0: never; default 150)")
-    group.add_argument("--register-frames", type=_positive_int, default=5, metavar="N",
+    group.add_argument("--register-frames", type=positive_int, default=5, metavar="N",
                        help="frames used for registration (default 5)")
 
 
@@ -122,8 +83,8 @@ def _configure_extract(p: argparse.ArgumentParser) -> None:
     p.add_argument("videos", nargs="*", metavar="VIDEO", help="video files or folders of frames")
     p.add_argument("--manifest", metavar="M", help="manifest CSV (SPEC §6); its rows with a video are extracted")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="worker processes (default 1)")
-    p.add_argument("--fps", type=_positive_float, metavar="F",
+    p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--fps", type=positive_float, metavar="F",
                    help="frame rate (frames/s): needed for folders of frames; overrides a video's own clock")
     p.add_argument("--overwrite", action="store_true", help="redo videos whose outputs exist (default: skip them)")
     _add_extract_options(p)
@@ -164,13 +125,13 @@ def _configure_annotate(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", metavar="VIDEO", help="video file or folder of frames")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--frames", type=_int_list, metavar="0,10,20", help="frames to draw")
-    which.add_argument("--every", type=_positive_int, metavar="N", help="draw every N-th frame (default: ~10 frames)")
+    which.add_argument("--frames", type=int_list, metavar="0,10,20", help="frames to draw")
+    which.add_argument("--every", type=positive_int, metavar="N", help="draw every N-th frame (default: ~10 frames)")
     p.add_argument("--mp4", action="store_true", help="also write an annotated mp4 of every frame")
     p.add_argument("--label", action="append", nargs="+", metavar="FRAME tip=X,Y bot=X,Y", default=[],
                    help="manual label of a frame in pixels (repeatable); compared with the measurement")
     p.add_argument("--labels", metavar="CSV", help="labels CSV: frame,tip_x_px,tip_y_px,bot_x_px,bot_y_px")
-    p.add_argument("--fps", type=_positive_float, metavar="F", help="frame rate (frames/s) for folders of frames")
+    p.add_argument("--fps", type=positive_float, metavar="F", help="frame rate (frames/s) for folders of frames")
     p.add_argument("--trial", metavar="NAME", help="trial name for the output files (default: file stem)")
     _add_extract_options(p)
 
@@ -201,10 +162,10 @@ def _run_annotate(args: argparse.Namespace) -> int:
 
 
 def _configure_bench(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frames", type=_positive_int, default=200, metavar="N", help="frames of the rendered video (default 200)")
+    p.add_argument("--frames", type=positive_int, default=200, metavar="N", help="frames of the rendered video (default 200)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--video", metavar="VIDEO", help="time this video instead of rendering one")
-    p.add_argument("--fps", type=_positive_float, metavar="F", help="frame rate (frames/s) for a folder of frames")
+    p.add_argument("--fps", type=positive_float, metavar="F", help="frame rate (frames/s) for a folder of frames")
 
 
 def _run_bench(args: argparse.Namespace) -> int:
@@ -215,16 +176,6 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- simulate, fit (pipeline/force_cli.py)
-
-def _float_list(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
-    if not values or any(v <= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r}: give one or more positive numbers")
-    return values
-
 
 def _size(text: str) -> tuple[int, int]:
     try:
@@ -238,12 +189,12 @@ def _size(text: str) -> tuple[int, int]:
 
 def _configure_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--speeds", type=_float_list, default=(0.5, 1.5, 3.0, 5.0, 7.5), help="insertion speeds, mm/s")
-    p.add_argument("--trials", type=_positive_int, default=2, help="repeats per speed")
+    p.add_argument("--speeds", type=speed_list, default=(0.5, 1.5, 3.0, 5.0, 7.5), help="insertion speeds, mm/s")
+    p.add_argument("--trials", type=positive_int, default=2, help="repeats per speed")
     p.add_argument("--seed", type=int, default=0, help="seed of everything random")
-    p.add_argument("--depth", type=_positive_float, default=15.0, help="final insertion depth, mm")
-    p.add_argument("--fps", type=_positive_float, default=30.0, help="frame rate, 1/s")
-    p.add_argument("--max-frames", type=_positive_int, default=120,
+    p.add_argument("--depth", type=positive_float, default=15.0, help="final insertion depth, mm")
+    p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate, 1/s")
+    p.add_argument("--max-frames", type=positive_int, default=120,
                    help="cap on frames per video (a longer insertion is filmed at a lower frame rate)")
     p.add_argument("--size", type=_size, default=(640, 480), help="frame size WIDTHxHEIGHT, px")
     p.add_argument("--nuisance", type=float, default=0.3, help="nuisance strength, 0 (clean) to 1 (heavy)")
@@ -260,7 +211,7 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
     hidden.add_argument("--no-video", action="store_true",
                         help="force logs and angles tables only (no videos; much faster); --fps is then the "
                              "angles tables' frame rate")
-    hidden.add_argument("--rate", type=_positive_float, default=None, metavar="HZ",
+    hidden.add_argument("--rate", type=positive_float, default=None, metavar="HZ",
                         help="force sampling rate, 1/s (default 50 with --no-video, 100 with videos)")
 
 
@@ -305,7 +256,7 @@ def _run_render(args: argparse.Namespace) -> int:
 def _configure_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     p.add_argument("--seed", type=int, default=0, help="seed of the synthetic experiment")
-    p.add_argument("--workers", type=_positive_int, default=2, help="processes for the extraction")
+    p.add_argument("--workers", type=positive_int, default=2, help="processes for the extraction")
 
 
 def _run_demo(args: argparse.Namespace) -> int:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from pipeline.argtypes import positive_int
+
 __all__ = [
     "configure_diagnose",
     "run_diagnose",
@@ -39,24 +41,14 @@ EVALUATE_DESCRIPTION = (
 )
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
-    return value
-
-
 def configure_diagnose(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani diagnose``."""
     p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, SPEC §6)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the random starts (default 0)")
-    p.add_argument("--bootstrap", type=_positive_int, default=1000, metavar="B",
+    p.add_argument("--bootstrap", type=positive_int, default=1000, metavar="B",
                    help="bootstrap resamples of trials (default 1000)")
-    p.add_argument("--rows-per-trial", type=_positive_int, default=56, metavar="N",
+    p.add_argument("--rows-per-trial", type=positive_int, default=56, metavar="N",
                    help="rows per trial used for fitting, evenly in time (default 56)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures of the report")
 
@@ -81,11 +73,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 def configure_evaluate(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani evaluate-diagnosis``."""
-    p.add_argument("--cases", type=_positive_int, default=70, metavar="N", help="number of generated cases (default 70)")
+    p.add_argument("--cases", type=positive_int, default=70, metavar="N", help="number of generated cases (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation (default 0)")
-    p.add_argument("--workers", type=_positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
     p.add_argument("--out", metavar="DIR", help="also write cases.csv and summary.json to this folder")
-    p.add_argument("--trials", type=_positive_int, default=10, metavar="N", help="repeats per speed (default 10)")
+    p.add_argument("--trials", type=positive_int, default=10, metavar="N", help="repeats per speed (default 10)")
 
 
 def run_evaluate(args: argparse.Namespace) -> int:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from pipeline.argtypes import positive_int, speed_list
+
 __all__ = [
     "configure_simulate",
     "run_simulate",
@@ -39,16 +41,6 @@ FIT_DESCRIPTION = (
 _SPEED_DEFAULT = (0.5, 3.0, 7.5)
 
 
-def _speed_list(text: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in mm/s, got {text!r}") from None
-    if not values or not all(0 < v < float("inf") for v in values):
-        raise argparse.ArgumentTypeError(f"expected positive speeds in mm/s, got {text!r}")
-    return values
-
-
 def _name_list(text: str) -> list[str]:
     from pipeline.friction import FLAT_NAMES
 
@@ -76,16 +68,6 @@ def _assignments(text: str) -> dict[str, float]:
     return out
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
-    return value
-
-
 # --------------------------------------------------------------------------- simulate
 
 
@@ -93,7 +75,7 @@ def configure_simulate(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani simulate``."""
     p.add_argument("--scenario", required=True, type=str.upper, choices=["S1", "S2", "S3", "S4"],
                    help="scenario of TABLE I (reconstructed presets)")
-    p.add_argument("--speeds", type=_speed_list, default=list(_SPEED_DEFAULT), metavar="V,..",
+    p.add_argument("--speeds", type=speed_list, default=list(_SPEED_DEFAULT), metavar="V,..",
                    help="insertion speeds in mm/s (default 0.5,3,7.5)")
     p.add_argument("--out", metavar="FILE", help="write the simulation table to this CSV file")
     p.add_argument("--friction-mode", choices=["vector", "axial"], default="vector",
@@ -140,7 +122,7 @@ def configure_fit(p: argparse.ArgumentParser) -> None:
                         "mu_s,mu_k,v_s_mm_s)")
     p.add_argument("--fix", type=_assignments, default={}, metavar="NAME=VALUE,..",
                    help="values of held parameters (default contact_width_mm=0.3,delta_s=2,mu_v_s_per_mm=0)")
-    p.add_argument("--starts", type=_positive_int, default=8, metavar="N", help="number of starts (default 8)")
+    p.add_argument("--starts", type=positive_int, default=8, metavar="N", help="number of starts (default 8)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random starts (default 0)")
     p.add_argument("--se", choices=["auto", "cluster", "neff", "naive"], default="auto",
                    help="standard errors reported as stderr (default auto: trial clusters when there are "

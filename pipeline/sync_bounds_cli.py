@@ -11,6 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from pipeline.argtypes import fraction, positive_float
+
 __all__ = [
     "SYNC_HELP",
     "SYNC_DESCRIPTION",
@@ -43,26 +45,6 @@ BOUNDS_DESCRIPTION = (
 )
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (0 < value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
-    return value
-
-
-def _level(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1, not {text}")
-    return value
-
-
 # --------------------------------------------------------------------------- sync
 
 
@@ -77,7 +59,7 @@ def configure_sync(p: argparse.ArgumentParser) -> None:
                         "(blank = 0), or always estimate")
     p.add_argument("--signal", choices=("auto", "depth", "force"), default="auto",
                    help="what the estimate aligns: depth_mm vs theta_tip, force_g vs theta_con, or auto (depth if logged)")
-    p.add_argument("--max-gap-frames", type=_positive_float, default=3.0, metavar="F",
+    p.add_argument("--max-gap-frames", type=positive_float, default=3.0, metavar="F",
                    help="do not interpolate angles across more than F frame periods between measured frames (default 3)")
 
 
@@ -115,7 +97,7 @@ def configure_bounds(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani bounds``."""
     p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, from 'tympani sync')")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--level", type=_level, default=0.95, help="band coverage (default 0.95)")
+    p.add_argument("--level", type=fraction, default=0.95, help="band coverage (default 0.95)")
     p.add_argument("--se", choices=("auto", "cluster", "effective_n", "ols"), default="auto",
                    help="standard errors: cluster-robust by trial, autocorrelation-corrected (effective_n), plain "
                         "OLS, or auto (cluster with >= 5 trials per speed, else effective_n; default)")

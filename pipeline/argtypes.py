@@ -1,0 +1,79 @@
+"""Argument types shared by the ``tympani`` subcommands.
+
+Each is an ``argparse`` ``type=`` callable: it turns the text of one option into a value or raises
+``argparse.ArgumentTypeError`` with a one-line reason, which :mod:`pipeline.cli` reports as a usage
+error (exit status 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["positive_int", "nonneg_int", "positive_float", "fraction", "int_list", "speed_list"]
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1 (a count: workers, frames, resamples)."""
+    value = _int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def nonneg_int(text: str) -> int:
+    """An integer >= 0 (0 usually meaning "never" or "none")."""
+    value = _int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, not {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (a rate, a duration, a force), in the option's own unit."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """A number strictly between 0 and 1 (a coverage level or a probability)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, not {text}")
+    return value
+
+
+def int_list(text: str) -> list[int]:
+    """Comma-separated frame numbers >= 0."""
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated frame numbers, got {text!r}") from None
+    if not values or any(v < 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected frame numbers >= 0, got {text!r}")
+    return values
+
+
+def speed_list(text: str) -> tuple[float, ...]:
+    """Comma-separated insertion speeds (mm/s), each finite and > 0."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in mm/s, got {text!r}") from None
+    if not values or not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected positive speeds in mm/s, got {text!r}")
+    return values
