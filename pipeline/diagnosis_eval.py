@@ -307,6 +307,8 @@ def summarise(results: pd.DataFrame) -> dict:
         force), ``median_true_shrink_pct`` (against the noiseless force) and
         ``median_gap_shrink_pct`` (the same above the effect-free floor ``floor_g`` per noise level:
         ``1 - sqrt(E_eff^2 - F^2) / sqrt(E_base^2 - F^2)``), all when the right effect is identified,
+        ``median_shrink_residual_detectable_pct`` and ``median_true_shrink_residual_detectable_pct``
+        (the first two on the residually detectable cases only),
         ``shrink_by_effect``, ``median_diagnose_s``, ``errors``.
     """
     r = results.copy()
@@ -339,6 +341,7 @@ def summarise(results: pd.DataFrame) -> dict:
     else:
         right["gap_shrink_pct"] = np.nan
     rdet = r[(r["effect"] != "none") & (r.get("residual_gap_to_noise", 0) > 2)]
+    rright = right[right.get("residual_gap_to_noise", 0) > 2]
     det = r[r["detectable"] | (r["effect"] == "none")]
     return dict(
         confusion=confusion, by_effect=by_effect, by_noise=by_noise, cases=len(r),
@@ -354,6 +357,9 @@ def summarise(results: pd.DataFrame) -> dict:
         floor_g=floor.to_dict(),
         accuracy_residual_detectable=float(rdet["correct"].mean()) if len(rdet) else float("nan"),
         residual_detectable_cases=int(len(rdet)),
+        median_shrink_residual_detectable_pct=float(rright["shrink_pct"].median()) if len(rright) else float("nan"),
+        median_true_shrink_residual_detectable_pct=(float(rright["true_shrink_pct"].median()) if len(rright)
+                                                    else float("nan")),
         median_diagnose_s=float(r["diagnose_s"].median()), errors=int((r["verdict"] == "error").sum()),
     )
 
@@ -391,7 +397,9 @@ def format_evaluation(summary: dict) -> str:
         f"confident-wrong rate {summary['confident_wrong_rate']:.3f}; false 'identified' on effect-free data "
         f"{summary['false_identified_rate']:.3f}",
         f"accuracy on effects whose unabsorbable gap exceeds 2 x noise: {summary['accuracy_residual_detectable']:.3f} "
-        f"({summary['residual_detectable_cases']} cases)",
+        f"({summary['residual_detectable_cases']} cases); median held-out shrinkage there when identified: "
+        f"{summary['median_shrink_residual_detectable_pct']:.1f} % (measured force), "
+        f"{summary['median_true_shrink_residual_detectable_pct']:.1f} % (noiseless force)",
         f"median held-out shrinkage when the right effect is identified: {summary['median_shrink_pct']:.1f} % of the RMSE "
         f"against the measured force, {summary['median_true_shrink_pct']:.1f} % against the noiseless force, "
         f"{summary['median_gap_shrink_pct']:.1f} % of the gap above the effect-free floor "

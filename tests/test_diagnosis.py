@@ -282,3 +282,7 @@ def test_small_blind_evaluation():
     assert summary["accuracy"] >= 0.7
     assert summary["median_true_shrink_pct"] > 40
     assert summary["median_gap_shrink_pct"] > 60
+    # where the gap the refitted base model cannot absorb exceeds twice the noise
+    assert summary["residual_detectable_cases"] >= 3
+    assert summary["accuracy_residual_detectable"] >= 0.8
+    assert summary["median_true_shrink_residual_detectable_pct"] > 60
