@@ -245,8 +245,14 @@ def _trials(data: dict) -> str:
                      int(r["warnings"]), str(r["error"]) if isinstance(r["error"], str) else ""])
     header = ["trial", "speed (mm/s)", "source", "frames", "measured", "sync", "offset from", "video_t0_s (s)",
               "force samples", "sync warnings", "error"]
+    warnings = [(t["trial"], w) for t in (data.get("sync") or {}).get("trials", []) for w in t.get("warnings") or []]
+    notes = ""
+    if warnings:
+        items = "".join(f"<li><code>{_e(trial)}</code>: {_e(w)}</li>" for trial, w in warnings)
+        notes = (f'<details class="note" id="sync-warnings"><summary>{len(warnings)} sync warning(s) '
+                 f"(synced.sync.json)</summary><ul>{items}</ul></details>")
     return ('<section id="trials"><h2>Trials</h2>'
-            + table_html(rows, header, table_id="trials-table", text_columns=(0, 2, 5, 6, 10)) + "</section>")
+            + table_html(rows, header, table_id="trials-table", text_columns=(0, 2, 5, 6, 10)) + notes + "</section>")
 
 
 def _paper_figures(data: dict) -> str:
