@@ -53,7 +53,8 @@ h1{font-size:1.7em;margin-bottom:.2em}h2{border-bottom:2px solid #d8dde6;padding
 h3{margin-top:1.3em}
 table.data{border-collapse:collapse;margin:.6em 0 1em;font-size:.88em}
 table.data th,table.data td{border:1px solid #cfd5df;padding:.25em .6em;text-align:right;vertical-align:top}
-table.data th{background:#eef1f6}table.data td.t,table.data th.t{text-align:left}
+table.data th{background:#eef1f6}table.data td.t,table.data th.t{text-align:left;overflow-wrap:anywhere}
+table.data{max-width:100%}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #e2e6ec}figcaption{font-size:.88em;color:#4a5468}
 .summary{display:flex;flex-wrap:wrap;gap:.8em}.card{background:#f3f6fa;border:1px solid #d8dde6;border-radius:6px;
 padding:.6em 1em;min-width:9em}.card b{display:block;font-size:1.5em}

@@ -449,9 +449,10 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
     rows = []
     for r in manifest.to_dict("records"):
         trial = str(r["trial"])
-        from_video = r.get("angles") is None
+        angles = r.get("angles")
+        from_video = not isinstance(angles, str) or not angles
         e, s = ex.get(trial, {}), sy.get(trial, {})
-        apath = Path(r["angles"]) if not from_video else out / "angles" / f"{trial}.angles.csv"
+        apath = Path(angles) if not from_video else out / "angles" / f"{trial}.angles.csv"
         frames, ok = _frames(apath) if apath.is_file() else (float("nan"), float("nan"))
         error = e.get("error") if e.get("status") == "failed" else s.get("error")
         rows.append(dict(
