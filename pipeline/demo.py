@@ -1,8 +1,13 @@
 """``tympani demo``: render a small synthetic experiment and run tympani on it.
 
 The demo is the quickest way to see the whole tool work without a lab: it renders a few
-insertion videos with force logs and exact truth, extracts the angles, checks them against the
-truth, synchronises angles and force, identifies the friction model and fits the safety bounds.
+insertion videos with force logs and exact truth (:data:`DEMO_EXPERIMENT`), runs ``tympani run``
+on them (:func:`pipeline.run.run_pipeline`: extract, sync, fit, bounds, diagnose, report.html)
+and checks the extracted angles against the truth (:func:`angle_errors`).
+
+The experiment is the smallest the diagnosis accepts (:class:`pipeline.diagnosis.DiagnosisConfig`:
+3 speeds with 2 repeats each, so one speed can be held out and the others still show the scatter
+between repeats), with 60-frame 640x480 videos; it runs in about a minute on 2 cores.
 """
 
 from __future__ import annotations
@@ -12,7 +17,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["angle_errors", "run_demo"]
+__all__ = ["angle_errors", "run_demo", "DEMO_SPEEDS_MM_S", "DEMO_TRIALS", "DEMO_MAX_FRAMES", "demo_experiment"]
+
+#: Insertion speeds of the demo (mm/s): the paper's slowest, middle and fastest.
+DEMO_SPEEDS_MM_S: tuple[float, ...] = (0.5, 3.0, 7.5)
+#: Repeats per speed: the fewest the diagnosis accepts.
+DEMO_TRIALS = 2
+#: Frames per video (the insertion is filmed at a lower frame rate to fit).
+DEMO_MAX_FRAMES = 60
+
+
+def demo_experiment():
+    """The demo's :class:`pipeline.experiment.ExperimentConfig` (no hidden effect)."""
+    from pipeline.experiment import ExperimentConfig
+
+    return ExperimentConfig(speeds_mm_s=DEMO_SPEEDS_MM_S, trials=DEMO_TRIALS, max_frames=DEMO_MAX_FRAMES)
 
 
 def angle_errors(angles_dir: str | Path, truth_dir: str | Path) -> pd.DataFrame:
@@ -49,43 +68,46 @@ def angle_errors(angles_dir: str | Path, truth_dir: str | Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def run_demo(out_dir: str | Path, *, seed: int = 0, workers: int = 2, quiet: bool = False) -> dict:
-    """Render a small experiment into ``out_dir`` and run extract → sync → fit → bounds on it.
+def run_demo(out_dir: str | Path, *, seed: int = 0, workers: int = 2, quiet: bool = False,
+             overwrite: bool = False) -> dict:
+    """Render a small experiment into ``out_dir`` and run ``tympani run`` on it.
 
     Parameters
     ----------
     out_dir : path
-        Output folder; a rerun reuses what is already there.
+        Output folder; a rerun reuses what is already there (the rendering when
+        ``manifest.csv`` exists, and every stage's up-to-date outputs).
     seed : int
-        Seed of the synthetic experiment.
+        Seed of the synthetic experiment, the fit's starts and the diagnosis' bootstrap.
     workers : int
         Processes for the extraction.
     quiet : bool
-        No progress bars.
+        No progress on stderr.
+    overwrite : bool
+        Redo every stage of the run (the rendering is kept).
 
     Returns
     -------
     dict
-        Paths of the outputs and the angle errors against the truth.
+        ``out`` (str), ``report`` (path of report.html or None), ``run``
+        (:class:`pipeline.run.RunResult`), ``errors`` (:func:`angle_errors`, rad).
     """
-    from pipeline.cli import main
+    import sys
+    from dataclasses import replace
+
+    from pipeline.run import RunConfig, run_pipeline
 
     out = Path(out_dir)
-    q = ["-q"] if quiet else []
-    steps = []
-    if not (out / "manifest.csv").exists():
-        steps.append(["render", "--out", str(out), "--speeds", "0.5,3,7.5", "--trials", "2",
-                      "--max-frames", "60", "--seed", str(seed)])
-    steps += [
-        ["extract", "--manifest", str(out / "manifest.csv"), "--out", str(out / "angles"), "--workers", str(workers)],
-        ["sync", "--manifest", str(out / "manifest.csv"), "--angles-dir", str(out / "angles"),
-         "--out", str(out / "synced.csv")],
-        ["fit", str(out / "synced.csv"), "--out", str(out / "fit")],
-        ["bounds", str(out / "synced.csv"), "--out", str(out / "bounds")],
-    ]
-    for argv in steps:
-        status = main([argv[0], *q, *argv[1:]])
-        if status != 0:
-            raise RuntimeError(f"tympani {argv[0]} exited with status {status}")
+    if not (out / "manifest.csv").exists():  # render_experiment writes the manifest last
+        from pipeline.experiment import render_experiment
+
+        if not quiet:
+            print(f"demo: rendering {len(DEMO_SPEEDS_MM_S) * DEMO_TRIALS} videos into {out}", file=sys.stderr)
+        render_experiment(out, demo_experiment(), seed=seed)
+    base = RunConfig()
+    cfg = RunConfig(workers=workers, overwrite=overwrite, progress=not quiet, fit=replace(base.fit, seed=seed),
+                    diagnosis=replace(base.diagnosis, seed=seed))
+    result = run_pipeline(out / "manifest.csv", out, cfg,
+                          command=["tympani", "demo", "--out", str(out), "--seed", str(seed), "--workers", str(workers)])
     errors = angle_errors(out / "angles", out / "truth")
-    return dict(out=str(out), errors=errors)
+    return dict(out=str(out), report=None if result.report is None else str(result.report), run=result, errors=errors)
