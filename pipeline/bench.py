@@ -1,29 +1,101 @@
-"""Throughput of the video → angles path on one core (``tympani bench``).
+"""Throughput, per-stage time and memory figures (``tympani bench``).
 
-:func:`run_bench` renders a 640×480 synthetic video with :mod:`vision.rendering` (or takes a
-given one), then times, with OpenCV limited to one thread,
+:func:`run_bench` prints, in one run (each figure with OpenCV limited to one thread):
 
-1. *decode only*: iterate the frames and convert them to grey;
-2. *full extraction*: :func:`pipeline.batch.extract_video` (registration, checks, measurement);
+1. **decode vs extraction** on one video (a rendered 640×480 mp4 by default, see
+   :func:`render_bench_video`): frames/s of decoding alone (read + grey conversion) and of the
+   full extraction (:func:`pipeline.batch.extract_video`: registration, checks, measurement),
+   and their ratio. Both are timed twice; the first extraction in a process also pays one-off
+   start-up costs (imports, first calls), so the *warm* run (best of the two) is the one
+   compared with decoding, and the cold one is reported beside it;
+2. **per-stage time** (ms/frame) of the warm extraction: decode (+ grey), registration (the
+   one-off registration, its measurement plan and the periodic checks) and the measurement's
+   stages (survey, edges, centre line, angles);
+3. **peak memory** (resident set, MiB) of :func:`pipeline.batch.process_video` on the video and
+   on a ``long_factor`` times longer one (the same frames looped), each in a fresh Python process
+   (a peak is per process; see :func:`_peak_rss_mib`), so that streaming shows as two nearly
+   equal figures;
+4. **diagnosis time** of :func:`pipeline.diagnosis.diagnose` on a synthetic 5-speed ×
+   ``trials`` dataset (:func:`pipeline.synthetic.synthetic_dataset`, no video);
+5. **batch throughput** of :func:`pipeline.batch.extract_batch` on ``batch_videos`` copies of
+   the video with 1, 2 and 4 worker processes.
 
-and reports frames/s of both, their ratio, the per-stage wall time per frame that the
-extraction recorded (``decode``, ``gray``, ``register``, ``check``, ``measure`` and the
-measurement's own ``measure.<stage>`` timings when it exposes them) and the peak resident
-memory of the process. It is a command, not a test: numbers depend on the machine.
+A section that fails is reported with its reason; the others still run. It is a command, not a
+test: the numbers depend on the machine and its load (the ratio is the most robust figure).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
+import pickle
 import resource
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
-__all__ = ["render_bench_video", "run_bench", "format_bench"]
+__all__ = ["BenchConfig", "render_bench_video", "loop_video", "run_bench", "format_bench", "SECTIONS"]
+
+#: Optional sections of the bench (the decode/extraction comparison always runs).
+SECTIONS: tuple[str, ...] = ("memory", "diagnosis", "workers")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """Sizes of the benchmark.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the rendered video (ignored for a given video).
+    seed : int
+        Seed of the renderer and of the synthetic diagnosis dataset.
+    long_factor : int
+        The long video of the memory figure has this many times the frames of the short one.
+    speeds_mm_s : tuple of float
+        Insertion speeds (mm/s) of the diagnosis dataset.
+    trials : int
+        Trials per speed of the diagnosis dataset (at least 2: the diagnosis measures the scatter
+        between repeats).
+    workers : tuple of int
+        Worker-process counts of the batch throughput figure.
+    batch_videos : int
+        Videos (copies of the bench video) per batch.
+    sections : tuple of str
+        Which of :data:`SECTIONS` to run.
+    """
+
+    n_frames: int = 200
+    seed: int = 0
+    long_factor: int = 10
+    speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
+    trials: int = 10
+    workers: tuple[int, ...] = (1, 2, 4)
+    batch_videos: int = 4
+    sections: tuple[str, ...] = SECTIONS
+
+    def __post_init__(self) -> None:
+        if self.n_frames < 1 or self.long_factor < 1 or self.batch_videos < 1:
+            raise ValueError("n_frames, long_factor and batch_videos must be >= 1")
+        if self.trials < 2:
+            raise ValueError("the diagnosis needs at least 2 trials a speed")
+        if not self.workers or min(self.workers) < 1:
+            raise ValueError("workers must be a non-empty list of counts >= 1")
+        unknown = set(self.sections) - set(SECTIONS)
+        if unknown:
+            raise ValueError(f"unknown bench section(s) {sorted(unknown)}; choose from {', '.join(SECTIONS)}")
+
+    @classmethod
+    def quick(cls, **changes: Any) -> "BenchConfig":
+        """Small sizes for a smoke test (about 30 s): 30 frames, 2 trials a speed, 1 and 2
+        workers on 2 videos; ``changes`` override."""
+        return dataclasses.replace(cls(n_frames=30, trials=2, workers=(1, 2), batch_videos=2), **changes)
 
 
 def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed: int = 0) -> Path:
@@ -52,101 +124,372 @@ def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed
     return Path(out_path)
 
 
+def loop_video(src: str | os.PathLike, dst: str | os.PathLike, times: int, *, fps: float | None = None) -> Path:
+    """Write ``src``'s frames ``times`` over, one pass after the other, as an mp4 (mp4v).
+
+    Parameters
+    ----------
+    src : str or PathLike
+        Video file or folder of frames.
+    dst : str or PathLike
+        Target ``.mp4`` file.
+    times : int
+        Number of passes.
+    fps : float, optional
+        Frame rate (frames/s) for a folder of frames (default: the source's).
+
+    Returns
+    -------
+    Path
+        ``dst``. Frames are streamed (one pass decoded at a time, none held).
+    """
+    import cv2
+
+    from vision.frames import open_frames
+
+    source = open_frames(src, fps=fps)
+    height, width = source.shape[:2]
+    writer = cv2.VideoWriter(str(dst), cv2.VideoWriter_fourcc(*"mp4v"), float(source.fps), (width, height))
+    if not writer.isOpened():
+        raise RuntimeError(f"cannot write {dst}")
+    try:
+        for _ in range(int(times)):
+            for frame in source:
+                image = frame.image
+                writer.write(image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    finally:
+        writer.release()
+    return Path(dst)
+
+
 def _peak_rss_mib() -> float:
-    """Peak resident set size of this process (MiB)."""
+    """Peak resident set size of this process (MiB).
+
+    On Linux it is ``VmHWM`` of ``/proc/self/status``: the high-water mark of this process's own
+    memory map. ``ru_maxrss`` is not used there because exec keeps the larger of the old and the
+    new map's peaks, so a child started by a big parent (vfork + exec) would report the parent's.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return float(line.split()[1]) / 1024.0  # kB
+    except OSError:
+        pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / 1024.0 / (1024.0 if sys.platform == "darwin" else 1.0)  # bytes on macOS, KiB elsewhere
 
 
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+# --------------------------------------------------------------------------- 1-2: decode vs extraction
+
+
+def _decode_s(path: Path, fps: float | None) -> tuple[int, float, tuple[int, int]]:
+    """Frames, wall time (s) and (height, width) of decoding ``path`` and converting to grey."""
+    from vision.frames import open_frames, to_gray
+
+    source = open_frames(path, fps=fps)
+    t0 = time.perf_counter()
+    n = 0
+    for frame in source:
+        to_gray(frame.image)
+        n += 1
+    return n, time.perf_counter() - t0, tuple(source.shape[:2])
+
+
+def _extract_s(path: Path, cfg: Any, fps: float | None) -> tuple[Any, float]:
+    """The angles table of ``path`` and the wall time (s) of its extraction."""
+    from pipeline.batch import extract_video
+
+    t0 = time.perf_counter()
+    table, _ = extract_video(path, cfg, fps=fps)
+    return table, time.perf_counter() - t0
+
+
+#: Stage groups of the report: name -> timing keys of :class:`pipeline.batch.ExtractLog`.
+STAGE_GROUPS: dict[str, tuple[str, ...]] = {
+    "decode": ("decode", "gray"),
+    "registration": ("register", "prepare", "check"),
+    "measure": ("measure",),
+    "  survey": ("measure.survey",),
+    "  edges": ("measure.edges",),
+    "  centre_line": ("measure.centre_line",),
+    "  angles": ("measure.angles",),
+}
+
+
+def _speed(path: Path, cfg: Any, fps: float | None) -> dict:
+    """Section 1-2: decode-only against full extraction, cold and warm, and per-stage times."""
+    import pandas as pd
+
+    n, decode_a, shape = _decode_s(path, fps)
+    table, cold_s = _extract_s(path, cfg, fps)
+    _, decode_b, _ = _decode_s(path, fps)
+    table_b, warm_s = _extract_s(path, cfg, fps)
+    if warm_s > cold_s:  # the best of the two is the warm figure
+        table_b, warm_s = table, cold_s
+    decode_s = min(decode_a, decode_b)
+    rows = max(len(table_b), 1)
+    decode_fps = n / decode_s if decode_s > 0 else float("inf")
+    extract_fps = len(table_b) / warm_s if warm_s > 0 else float("inf")
+    timing = dict(table_b.attrs.get("timing_s", {}))
+    stages = {k: 1000.0 * v / rows for k, v in timing.items()}
+    groups = {name: 1000.0 * sum(timing.get(k, 0.0) for k in keys) / rows
+              for name, keys in STAGE_GROUPS.items() if any(k in timing for k in keys)}
+    accounted = sum(timing.get(k, 0.0) for k in ("decode", "gray", "register", "prepare", "check", "measure"))
+    groups["other"] = 1000.0 * max(warm_s - accounted, 0.0) / rows
+    once_s = timing.get("register", 0.0) + timing.get("prepare", 0.0)
+    for col in table_b.columns:  # timings the measurement reports per frame, e.g. time_ms
+        if col.endswith("_ms") and pd.api.types.is_numeric_dtype(table_b[col]) and table_b[col].notna().any():
+            stages[f"measure_frame {col}"] = float(table_b[col].mean())
+    return {
+        "n_frames": n,
+        "height_px": shape[0],
+        "width_px": shape[1],
+        "decode_fps": decode_fps,
+        "extract_fps": extract_fps,
+        "extract_fps_cold": len(table) / cold_s if cold_s > 0 else float("inf"),
+        "ratio": decode_fps / extract_fps if extract_fps > 0 else float("inf"),
+        "extract_vs_decode": extract_fps / decode_fps if decode_fps > 0 else 0.0,
+        "extract_fps_steady": len(table_b) / (warm_s - once_s) if warm_s > once_s else float("inf"),
+        "stage_s": timing,
+        "stage_ms_per_frame": stages,
+        "stage_groups_ms": groups,
+        "n_ok": int(table_b["ok"].sum()),
+    }
+
+
+# --------------------------------------------------------------------------- 3: memory
+
+
+def _child_rss(argv: list[str]) -> None:
+    """Body of the memory subprocess: ``python -m pipeline.bench rss VIDEO CFG_PICKLE [FPS]``.
+
+    Prints one JSON line: ``import_rss_mib`` (peak after the imports), ``peak_rss_mib`` (after
+    :func:`pipeline.batch.process_video`), ``n_frames`` and ``seconds``.
+    """
+    import cv2
+
+    from pipeline.batch import process_video
+
+    cv2.setNumThreads(1)
+    video, cfg_path = argv[0], argv[1]
+    fps = float(argv[2]) if len(argv) > 2 else None
+    with open(cfg_path, "rb") as fh:
+        cfg = pickle.load(fh)
+    before = _peak_rss_mib()
+    with tempfile.TemporaryDirectory(prefix="tympani-bench-rss-") as out:
+        t0 = time.perf_counter()
+        summary = process_video(video, out, cfg, fps=fps, overwrite=True)
+        seconds = time.perf_counter() - t0
+    print(json.dumps({"import_rss_mib": before, "peak_rss_mib": _peak_rss_mib(), "n_frames": int(summary["n_frames"]),
+                      "n_ok": int(summary["n_ok"]), "seconds": seconds}))
+
+
+def _rss_in_subprocess(video: Path, cfg_path: Path, fps: float | None) -> dict:
+    """Run :func:`_child_rss` in a fresh interpreter and return its JSON."""
+    cmd = [sys.executable, "-m", "pipeline.bench", "rss", str(video), str(cfg_path)]
+    if fps is not None:
+        cmd.append(repr(float(fps)))
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=3600)
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        raise RuntimeError(f"memory subprocess failed: {lines[-1] if lines else 'exit ' + str(done.returncode)}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _memory(path: Path, cfg: Any, fps: float | None, factor: int, tmp: Path) -> dict:
+    """Section 3: peak RSS of one extraction of the video and of a ``factor`` times longer one."""
+    cfg_path = tmp / "extract_config.pickle"
+    with open(cfg_path, "wb") as fh:
+        pickle.dump(cfg, fh)
+    long_path = loop_video(path, tmp / "bench_long.mp4", factor, fps=fps)
+    short = _rss_in_subprocess(path, cfg_path, fps)
+    long = _rss_in_subprocess(long_path, cfg_path, fps)
+    return {"short": short, "long": long, "factor": factor,
+            "growth_mib": long["peak_rss_mib"] - short["peak_rss_mib"]}
+
+
+# --------------------------------------------------------------------------- 4: diagnosis
+
+
+def _diagnosis(config: BenchConfig) -> dict:
+    """Section 4: time to generate and diagnose a synthetic speeds × trials dataset."""
+    import numpy as np
+
+    from pipeline.diagnosis import DiagnosisConfig, diagnose
+    from pipeline.synthetic import synthetic_dataset
+
+    t0 = time.perf_counter()
+    synced, _ = synthetic_dataset(np.random.default_rng(config.seed), "hydrodynamic_lift",
+                                  speeds_mm_s=config.speeds_mm_s, trials=config.trials)
+    t1 = time.perf_counter()
+    result = diagnose(synced, DiagnosisConfig())
+    t2 = time.perf_counter()
+    return {"speeds": len(config.speeds_mm_s), "trials": config.trials, "rows": len(synced),
+            "generate_s": t1 - t0, "diagnose_s": t2 - t1, "verdict": str(getattr(result, "verdict", "")),
+            "effect": getattr(result, "effect", None)}
+
+
+# --------------------------------------------------------------------------- 5: workers
+
+
+def _workers(path: Path, cfg: Any, fps: float | None, config: BenchConfig, tmp: Path) -> list[dict]:
+    """Section 5: :func:`pipeline.batch.extract_batch` on copies of the video per worker count."""
+    from pipeline.batch import VideoItem, extract_batch
+
+    items = [VideoItem(str(path), trial=f"bench{i:02d}", fps=fps) for i in range(config.batch_videos)]
+    out = []
+    for workers in config.workers:
+        out_dir = tmp / f"batch_w{workers}"
+        t0 = time.perf_counter()
+        summary = extract_batch(items, out_dir, cfg, workers=workers, overwrite=True, progress=False, fps=fps)
+        seconds = time.perf_counter() - t0
+        shutil.rmtree(out_dir, ignore_errors=True)
+        ok = summary["status"] == "ok"
+        frames = int(summary.loc[ok, "n_frames"].sum())
+        errors = sorted({str(e) for e in summary.loc[~ok, "error"]})
+        out.append({"workers": workers, "videos": len(items), "ok": int(ok.sum()), "frames": frames,
+                    "seconds": seconds, "videos_per_s": int(ok.sum()) / seconds, "frames_per_s": frames / seconds,
+                    "error": "; ".join(errors)})
+    return out
+
+
+# --------------------------------------------------------------------------- all
+
+
 def run_bench(
-    *, video: str | os.PathLike | None = None, n_frames: int = 200, seed: int = 0, fps: float | None = None,
-    cfg: Any = None,
+    *, video: str | os.PathLike | None = None, n_frames: int | None = None, seed: int | None = None,
+    fps: float | None = None, cfg: Any = None, config: BenchConfig | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> dict:
-    """Time decoding against full extraction on one core.
+    """Run the benchmark (see the module docstring) with OpenCV on one thread.
 
     Parameters
     ----------
     video : str or PathLike, optional
         Video to time (default: render one, see :func:`render_bench_video`).
-    n_frames : int
-        Frames of the rendered video.
-    seed : int
-        Render seed.
+    n_frames, seed : int, optional
+        Override ``config.n_frames`` and ``config.seed``.
     fps : float, optional
         Frame rate (frames/s) for a folder of frames.
     cfg : ExtractConfig, optional
         Extraction settings (default ``ExtractConfig()``).
+    config : BenchConfig, optional
+        Sizes and sections (default ``BenchConfig()``).
+    log : callable, optional
+        Called with a short line as each section starts (progress).
 
     Returns
     -------
     dict
-        ``video``, ``n_frames``, ``width_px``, ``height_px``, ``decode_fps``, ``extract_fps``
-        (frames/s), ``ratio`` (decode_fps / extract_fps), ``stage_ms_per_frame`` (ms),
+        ``video`` and the decode/extraction figures: ``n_frames``, ``width_px``, ``height_px``,
+        ``decode_fps``, ``extract_fps`` (warm), ``extract_fps_cold`` (frames/s), ``ratio``
+        (decode_fps / extract_fps), ``extract_vs_decode`` (extract_fps / decode_fps),
         ``extract_fps_steady`` (frames/s without registration and its preparation),
-        ``stage_s`` (s, whole video), ``n_ok``, ``peak_rss_mib`` (MiB).
+        ``stage_s`` (s, whole video), ``stage_ms_per_frame`` and ``stage_groups_ms`` (ms/frame),
+        ``n_ok``; ``peak_rss_mib`` (MiB, this process); ``memory`` (``short``/``long``: each
+        ``import_rss_mib``, ``peak_rss_mib``, ``n_frames``, ``seconds``; ``growth_mib``),
+        ``diagnosis`` (``rows``, ``generate_s``, ``diagnose_s``, ``verdict``, ...), ``workers``
+        (one dict per count: ``workers``, ``videos``, ``ok``, ``frames``, ``seconds``,
+        ``videos_per_s``, ``frames_per_s``, ``error``) for the sections run; ``errors``
+        (section -> one-line reason) and ``total_s``.
     """
     import cv2
-    import pandas as pd
 
-    from pipeline.batch import ExtractConfig, extract_video
-    from vision.frames import open_frames, to_gray
+    from pipeline.batch import ExtractConfig
 
+    config = config if config is not None else BenchConfig()
+    config = dataclasses.replace(config, **{k: v for k, v in (("n_frames", n_frames), ("seed", seed)) if v is not None})
     cfg = cfg if cfg is not None else ExtractConfig()
+    say = log if log is not None else (lambda _line: None)
+    t_start = time.perf_counter()
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    result: dict[str, Any] = {"errors": {}}
     try:
-        with tempfile.TemporaryDirectory(prefix="tympani-bench-") as tmp:
-            path = Path(video) if video is not None else render_bench_video(Path(tmp) / "bench.mp4", n_frames=n_frames, seed=seed)
-            source = open_frames(path, fps=fps)
-            t0 = time.perf_counter()
-            n = 0
-            for frame in source:
-                to_gray(frame.image)
-                n += 1
-            decode_s = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            table, _ = extract_video(path, cfg, fps=fps)
-            extract_s = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory(prefix="tympani-bench-") as tmp_name:
+            tmp = Path(tmp_name)
+            if video is None:
+                say(f"rendering a {config.n_frames}-frame 640x480 video")
+                path = render_bench_video(tmp / "bench.mp4", n_frames=config.n_frames, seed=config.seed)
+                result["video"] = f"rendered (seed {config.seed})"
+            else:
+                path = Path(video)
+                result["video"] = str(video)
+            say("decode vs extraction")
+            result.update(_speed(path, cfg, fps))
+            sections: list[tuple[str, Callable[[], Any]]] = [
+                ("memory", lambda: _memory(path, cfg, fps, config.long_factor, tmp)),
+                ("diagnosis", lambda: _diagnosis(config)),
+                ("workers", lambda: _workers(path, cfg, fps, config, tmp)),
+            ]
+            for name, run in sections:
+                if name not in config.sections:
+                    continue
+                say(name)
+                try:
+                    result[name] = run()
+                except Exception as exc:  # a failed section is reported; the others still run
+                    result["errors"][name] = _one_line(exc)
     finally:
         cv2.setNumThreads(threads)
-    decode_fps = n / decode_s if decode_s > 0 else float("inf")
-    extract_fps = len(table) / extract_s if extract_s > 0 else float("inf")
-    timing = dict(table.attrs.get("timing_s", {}))
-    stages = {k: 1000.0 * v / max(len(table), 1) for k, v in timing.items()}
-    once_s = timing.get("register", 0.0) + timing.get("prepare", 0.0)
-    steady_s = extract_s - once_s
-    for col in table.columns:  # timings the measurement reports per frame, e.g. time_ms
-        if col.endswith("_ms") and pd.api.types.is_numeric_dtype(table[col]) and table[col].notna().any():
-            stages[f"measure_frame {col}"] = float(table[col].mean())
-    return {
-        "video": str(video) if video is not None else f"rendered (seed {seed})",
-        "n_frames": n,
-        "width_px": source.shape[1],
-        "height_px": source.shape[0],
-        "decode_fps": decode_fps,
-        "extract_fps": extract_fps,
-        "ratio": decode_fps / extract_fps if extract_fps > 0 else float("inf"),
-        "extract_fps_steady": len(table) / steady_s if steady_s > 0 else float("inf"),
-        "stage_s": timing,
-        "stage_ms_per_frame": stages,
-        "n_ok": int(table["ok"].sum()),
-        "peak_rss_mib": _peak_rss_mib(),
-    }
+    result["peak_rss_mib"] = _peak_rss_mib()
+    result["total_s"] = time.perf_counter() - t_start
+    return result
 
 
 def format_bench(result: dict) -> str:
     """The benchmark result as a short human-readable report."""
     lines = [
         f"video          {result['video']}: {result['n_frames']} frames, {result['width_px']}x{result['height_px']} px",
-        f"decode only    {result['decode_fps']:8.1f} frames/s (1 core)",
-        f"full extract   {result['extract_fps']:8.1f} frames/s (1 core), {result['n_ok']} frames ok",
-        f"ratio          {result['ratio']:8.1f} x (decode / extract)",
+        f"decode only    {result['decode_fps']:8.1f} frames/s (1 core; read + grey)",
+        f"full extract   {result['extract_fps']:8.1f} frames/s (1 core, warm), {result['n_ok']} frames ok; "
+        f"{result['extract_fps_cold']:.1f} frames/s cold (first in the process)",
+        f"ratio          {result['ratio']:8.2f} x (decode / extract): extraction at "
+        f"{100.0 * result['extract_vs_decode']:.0f} % of decode speed",
         f"steady state   {result['extract_fps_steady']:8.1f} frames/s (extraction without the one-off registration)",
-        f"{'stage':<24s} {'total s':>9s} {'ms/frame':>9s}",
+        f"{'stage':<24s} {'ms/frame':>9s}",
     ]
+    for stage, ms in result.get("stage_groups_ms", {}).items():
+        lines.append(f"  {stage:<22s} {ms:9.3f}")
+    lines.append(f"{'timed step':<24s} {'total s':>9s} {'ms/frame':>9s}")
     totals = result.get("stage_s", {})
     for stage, ms in sorted(result["stage_ms_per_frame"].items(), key=lambda kv: -kv[1]):
         total = f"{totals[stage]:9.3f}" if stage in totals else f"{'':9s}"
         lines.append(f"  {stage:<22s} {total} {ms:9.3f}")
-    lines.append(f"peak memory    {result['peak_rss_mib']:8.1f} MiB (resident, whole process)")
+    lines.append(f"peak memory    {result['peak_rss_mib']:8.1f} MiB (resident, whole bench process)")
+    errors = result.get("errors", {})
+    if "memory" in result:
+        m = result["memory"]
+        for key in ("short", "long"):
+            r = m[key]
+            lines.append(f"  extraction {key:<5s} {r['n_frames']:6d} frames: peak {r['peak_rss_mib']:7.1f} MiB "
+                         f"(after imports {r['import_rss_mib']:.1f} MiB), {r['seconds']:.1f} s, fresh process")
+        lines.append(f"  long - short   {m['growth_mib']:+7.1f} MiB for {m['factor']}x the frames")
+    if "diagnosis" in result:
+        d = result["diagnosis"]
+        lines.append(f"diagnosis      {d['diagnose_s']:8.2f} s for {d['speeds']} speeds x {d['trials']} trials "
+                     f"({d['rows']} rows; generated in {d['generate_s']:.2f} s; verdict {d['verdict']})")
+    if "workers" in result:
+        lines.append(f"{'batch workers':<14s} {'videos':>6s} {'s':>7s} {'videos/s':>9s} {'frames/s':>9s}")
+        for w in result["workers"]:
+            note = f"  {w['videos'] - w['ok']} failed: {w['error']}" if w["ok"] < w["videos"] else ""
+            lines.append(f"  {w['workers']:<12d} {w['videos']:6d} {w['seconds']:7.2f} {w['videos_per_s']:9.2f} "
+                         f"{w['frames_per_s']:9.1f}{note}")
+    for name, reason in errors.items():
+        lines.append(f"{name:<14s} FAILED: {reason}")
+    lines.append(f"bench total    {result['total_s']:8.1f} s")
     return "\n".join(lines)
+
+
+if __name__ == "__main__":  # the memory figure's subprocess (see _rss_in_subprocess)
+    if len(sys.argv) >= 4 and sys.argv[1] == "rss":
+        _child_rss(sys.argv[2:])
+    else:
+        sys.exit("usage: python -m pipeline.bench rss VIDEO CONFIG_PICKLE [FPS]")

@@ -102,6 +102,7 @@ def contact_angles(
     *,
     contact_tol_mm: float = 0.05,
     gap_mm: np.ndarray | None = None,
+    theta: np.ndarray | None = None,
 ) -> ContactAngles:
     """SPEC §3 angles of an array given by its centreline, tip first.
 
@@ -117,6 +118,10 @@ def contact_angles(
         Largest gap (mm) between outer edge and outer wall that counts as contact.
     gap_mm : ndarray, shape (n,), optional
         Gaps (mm) if already known (e.g. measured); otherwise :func:`outer_wall_gap`.
+    theta : ndarray, shape (n,), optional
+        The points' SPEC angles (rad) if already known (the measurement computes them with
+        precomputed constants, see :func:`_spiral_angle`); otherwise
+        :func:`vision.geometry.point_angle`.
 
     Returns
     -------
@@ -126,7 +131,8 @@ def contact_angles(
         tip ``theta_bot = theta_tip`` and ``theta_con = 0``.
     """
     centreline_mm = np.atleast_2d(np.asarray(centreline_mm, dtype=float))
-    theta = point_angle(centreline_mm, phantom)
+    if theta is None:
+        theta = point_angle(centreline_mm, phantom)
     if gap_mm is None:
         gap_mm = outer_wall_gap(centreline_mm, radius_mm, phantom, theta)
     tip = centreline_mm[0]
@@ -355,6 +361,64 @@ class FrameMeasurement:
 
 
 @dataclass(frozen=True, eq=False)
+class _AngleTable:
+    """The constants :func:`vision.geometry.point_angle` derives from a phantom, computed once
+    per plan so that :func:`_spiral_angle` costs a dozen NumPy calls per frame.
+
+    ``turns`` are the candidate offsets 2πk (rad); ``origin``, ``x_w``, ``normal`` (mm, unit)
+    the entry frame and ``entry_width_mm`` the entry channel's width (mm); the rest are
+    :class:`~vision.geometry.Phantom` fields of Eq. (1) and the channel's ends (rad).
+    """
+
+    turns: np.ndarray
+    theta_start: float
+    theta_end: float
+    branch_deg: float
+    c_mm: float
+    d: float
+    phi0_deg: float
+    a_mm: float
+    b_per_deg: float
+    origin: np.ndarray
+    x_w: np.ndarray
+    normal: np.ndarray
+    entry_width_mm: float
+
+
+def _angle_table(phantom: Phantom) -> _AngleTable:
+    """:class:`_AngleTable` of ``phantom``, with the same constants as ``point_angle``."""
+    n_turns = int(np.ceil((phantom.theta_end + np.pi) / (2 * np.pi))) + 1
+    origin, x_w, normal = entry_frame(phantom)
+    return _AngleTable(
+        turns=2 * np.pi * np.arange(n_turns), theta_start=float(phantom.theta_start),
+        theta_end=float(phantom.theta_end), branch_deg=float(phantom.branch_deg), c_mm=float(phantom.c_mm),
+        d=float(phantom.d), phi0_deg=float(phantom.phi0_deg), a_mm=float(phantom.a_mm),
+        b_per_deg=float(phantom.b_per_deg), origin=origin, x_w=x_w, normal=normal,
+        entry_width_mm=float(channel_width(phantom.theta_start, phantom)),
+    )
+
+
+def _spiral_angle(xy: np.ndarray, t: _AngleTable) -> np.ndarray:
+    """SPEC §2 angles (rad) of points ``xy`` (mm, shape (n, 2)): the same arithmetic as
+    :func:`vision.geometry.point_angle`, with the phantom's constants precomputed in ``t``.
+
+    Candidates clipped to [theta_start, theta_end] (> phi0) keep the logarithm finite, so no
+    error-state guard is needed.
+    """
+    x, y = xy[:, 0], xy[:, 1]
+    phi = np.arctan2(y, x)
+    rho = np.hypot(x, y)
+    cand = phi[:, None] + t.turns[None, :]
+    clipped = np.minimum(np.maximum(cand, t.theta_start), t.theta_end)
+    deg = np.degrees(clipped)
+    r = np.where(deg < t.branch_deg, t.c_mm * (1.0 - t.d * np.log(deg - t.phi0_deg)), t.a_mm * np.exp(-t.b_per_deg * deg))
+    k = np.argmin(np.abs(r - rho[:, None]) + 0.1 * np.abs(cand - clipped), axis=1)
+    rel = xy - t.origin
+    entry = ((rel @ t.x_w) < 0) & (np.abs(rel @ t.normal) <= t.entry_width_mm)
+    return np.where(entry, phi, phi + 2 * np.pi * k)
+
+
+@dataclass(frozen=True, eq=False)
 class MeasurePlan:
     """The straightened channel of one registration, built once and reused for every frame.
 
@@ -390,6 +454,10 @@ class MeasurePlan:
         First station of the spiral (at or after ``theta_start``).
     in_view : ndarray, shape (stations,), bool
         Stations whose interior samples all lie inside the image.
+    angles : _AngleTable
+        The phantom's constants for the SPEC angles of measured points.
+    r_tip_mm : float
+        The array's radius (mm) at its tip.
     """
 
     pose: CameraPose
@@ -410,6 +478,8 @@ class MeasurePlan:
     half_mm: np.ndarray
     i_start: int
     in_view: np.ndarray
+    angles: _AngleTable
+    r_tip_mm: float
 
     @property
     def step_mm(self) -> float:
@@ -529,6 +599,7 @@ def prepare_measurement(
         coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride]), fine_penalty=penalty,
         u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
         in_view=np.all(inside | ~interior, axis=0),
+        angles=_angle_table(phantom), r_tip_mm=float(array.radius(0.0)),
     )
 
 
@@ -874,11 +945,14 @@ def _smooth_valid(
     slope_size = size if slope_size is None else slope_size
     big = max(size, slope_size) // 2
     x = np.arange(n, dtype=float)
-    w = valid.astype(float)
-    wy = np.where(valid, values, 0.0)
-    stack = np.concatenate([w[None], (w * x)[None], (w * x * x)[None], wy, wy * x])
-    csum = np.zeros((len(stack), n + 2 * big + 1))  # cumulative sums, 0 before, held after
-    np.cumsum(stack, axis=1, out=csum[:, big + 1 : n + big + 1])
+    csum = np.zeros((3 + 2 * k, n + 2 * big + 1))  # cumulative sums, 0 before, held after
+    body = csum[:, big + 1 : n + big + 1]  # rows w, w x, w x², w y (k rows), w y x (k rows)
+    body[0] = valid
+    np.multiply(body[0], x, out=body[1])
+    np.multiply(body[1], x, out=body[2])
+    np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
+    np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
+    np.cumsum(body, axis=1, out=body)
     csum[:, n + big + 1 :] = csum[:, n + big : n + big + 1]
 
     def sums(h: int) -> np.ndarray:  # over stations i-h .. i+h (clipped)
@@ -891,6 +965,49 @@ def _smooth_valid(
         for row in fit:
             row[~have] = np.interp(x[~have], x[have], row[have])
     return fit, slope
+
+
+def _near(mask: np.ndarray, size: int) -> np.ndarray:
+    """Where ``mask`` holds somewhere within the window of ``size`` (odd) stations centred on
+    each station (clipped at the ends).
+
+    Parameters
+    ----------
+    mask : ndarray, shape (n,), bool
+    size : int
+        Window length (stations, odd).
+
+    Returns
+    -------
+    ndarray, shape (n,), bool
+    """
+    n, h = len(mask), int(size) // 2
+    csum = np.zeros(n + 2 * h + 1, dtype=np.intp)
+    np.cumsum(mask, out=csum[h + 1 : n + h + 1])
+    csum[n + h + 1 :] = csum[n + h]
+    return csum[2 * h + 1 :] > csum[: n]
+
+
+def _running_median(x: np.ndarray, size: int) -> np.ndarray:
+    """Median of each window of ``size`` (odd) samples of ``x`` centred on it, the ends
+    extended with the end values (``scipy.ndimage.median_filter(x, size, mode="nearest")``
+    in a handful of NumPy calls).
+
+    Parameters
+    ----------
+    x : ndarray, shape (m,)
+        Samples (any unit).
+    size : int
+        Window length (samples, odd).
+
+    Returns
+    -------
+    ndarray, shape (m,)
+    """
+    h = int(size) // 2
+    idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
+    np.clip(idx, 0, len(x) - 1, out=idx)
+    return np.partition(x[idx], h, axis=1)[:, h]
 
 
 def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -1040,8 +1157,10 @@ def _centre_offsets(
     radius : ndarray, shape (n,)
         The array's radius (mm) at each station.
     """
-    radius = array.radius(s)
-    r_tip = float(array.radius(0.0))
+    length = array.length_mm  # ElectrodeArray.radius, without its Python-level overhead
+    s_in = np.minimum(np.maximum(s, 0.0), length)
+    radius = 0.5 * (array.tip_diameter_mm + (array.base_diameter_mm - array.tip_diameter_mm) * s_in / length)
+    r_tip = 0.5 * array.tip_diameter_mm
     body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
     visible = body_half * stretch
     cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - np.maximum(tol_mm, 0.3 * visible))
@@ -1194,8 +1313,8 @@ def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
     level = np.full(n, 0.5 * (c_f + c_a))
     window = _odd(2.0 * cfg.gap_smooth_mm / step)
     if fluid_ok.sum() >= 3:  # where the fluid shows clear of the wall, the local levels
-        (lf, la), _ = _smooth_valid(np.stack([c_fluid, c_array]), fluid_ok, window)
-        near = ndimage.uniform_filter1d(fluid_ok.astype(float), window) > 0
+        (lf, la), _ = _smooth_valid(np.vstack([c_fluid, c_array]), fluid_ok, window)
+        near = _near(fluid_ok, window)
         level = np.where(near, 0.5 * (lf + la), level)
     low = _relevel(cover, low, np.isfinite(low), level)
     body = _erode((darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
@@ -1236,7 +1355,7 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
     if len(idx) < 3:
         return None
     med = np.zeros(n)
-    med[idx] = ndimage.median_filter(v_c[idx], size=k_smooth, mode="nearest")
+    med[idx] = _running_median(v_c[idx], k_smooth)
     measured = _inliers(v_c - med, measured, tol)
     fit, slant = _smooth_valid(v_c[None, :], measured, _odd(2.5 * cfg.gap_smooth_mm / step))
     centre, stretch = fit[0], np.sqrt(1.0 + (slant[0] / step) ** 2)
@@ -1258,13 +1377,13 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
     if measured.sum() < 3:
         return None
     # where both edges show, the array must be about as wide as it is (noise is not)
-    both = e.ok_in & e.ok_out & (stations <= tip_f) & (s >= array.radius(0.0))
+    both = e.ok_in & e.ok_out & (stations <= tip_f) & (s >= plan.r_tip_mm)
     if both.sum() >= 10:
         width = 2.0 * radius * stretch
         fits = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
         if fits[both].mean() < 0.5:
             return None
-    centre, gap = _smooth_valid(np.stack([v_c, half - v_c - radius * stretch]), measured, k_smooth)[0]
+    centre, gap = _smooth_valid(np.vstack([v_c, half - v_c - radius * stretch]), measured, k_smooth)[0]
     return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured)
 
 
@@ -1275,14 +1394,15 @@ def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, floa
     keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(cfg.angle_step_mm / plan.step_mm)))]
     centreline = np.vstack([c.tip_mm[None, :], c.line[keep]])
     gaps = np.concatenate([c.gap[keep[:1]] if len(keep) else c.gap[-1:], c.gap[keep]])
-    radii = np.concatenate([[float(plan.array.radius(0.0))], c.radius[keep]])
+    radii = np.concatenate([[plan.r_tip_mm], c.radius[keep]])
     if lo + c.tip_f < plan.i_start:  # tip in the entry channel: theta = phi (SPEC §2), no contact
-        theta_tip = float(point_angle(c.tip_mm[None, :], plan.phantom)[0])
+        theta_tip = float(_spiral_angle(c.tip_mm[None, :], plan.angles)[0])
         angles = ContactAngles(theta_tip, theta_tip, 0.0, c.tip_mm, c.tip_mm)
         extras["depth_mm"] = -float(plan.p_mm[plan.i_start] - plan.p_mm[lo] - c.tip_f * plan.step_mm)
     else:
-        angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps)
-        d = np.diff(centreline, axis=0)
+        angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps,
+                                theta=_spiral_angle(centreline, plan.angles))
+        d = centreline[1:] - centreline[:-1]
         extras["depth_mm"] = float(np.hypot(d[:, 0], d[:, 1]).sum())
     side = radii[1:, None] * plan.normal[lo + keep]
     outline = np.vstack([c.tip_mm[None, :], centreline[1:] - side, (centreline[1:] + side)[::-1]])
@@ -1301,17 +1421,21 @@ def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
     t1 = time.perf_counter()
     timings = {"survey": t1 - t0}
     if isinstance(sv, FrameMeasurement):
-        return replace(sv, timings=timings)
+        sv.timings.update(timings)
+        return sv
     e = _edges(img, plan, sv)
     t2 = time.perf_counter()
     c = _centre_line(plan, e)
     t3 = time.perf_counter()
     timings.update(edges=t2 - t1, centre_line=t3 - t2)
     if c is None:
-        return replace(_fail("array edges not found", contrast=sv.contrast), timings=timings)
-    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.mean())))
+        failed = _fail("array edges not found", contrast=sv.contrast)
+        failed.timings.update(timings)
+        return failed
+    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
     timings["angles"] = time.perf_counter() - t3
-    return replace(result, timings=timings)
+    result.timings.update(timings)
+    return result
 
 
 def measure_frame(

@@ -1,0 +1,85 @@
+"""Smoke test of ``tympani bench`` at tiny sizes: structure and sanity, never timing thresholds."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from pipeline.bench import SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
+from pipeline.cli import main
+from vision.frames import open_frames
+
+
+@pytest.fixture(scope="module")
+def tiny_video(tmp_path_factory):
+    return render_bench_video(tmp_path_factory.mktemp("bench") / "tiny.mp4", n_frames=12, seed=3)
+
+
+def _finite_positive(x: float) -> bool:
+    return math.isfinite(x) and x > 0
+
+
+def test_loop_video_repeats_the_frames(tiny_video, tmp_path):
+    looped = loop_video(tiny_video, tmp_path / "long.mp4", 3)
+    assert open_frames(looped).count() == 3 * open_frames(tiny_video).count()
+
+
+def test_bench_config_checks_its_values():
+    with pytest.raises(ValueError):
+        BenchConfig(sections=("nope",))
+    with pytest.raises(ValueError):
+        BenchConfig(workers=())
+    with pytest.raises(ValueError):
+        BenchConfig(trials=1)  # the diagnosis needs repeats
+    assert BenchConfig.quick(trials=3).trials == 3
+
+
+def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
+    config = BenchConfig.quick(long_factor=3, trials=2, workers=(1, 2), batch_videos=2)
+    lines: list[str] = []
+    result = run_bench(video=tiny_video, config=config, log=lines.append)
+    assert result["errors"] == {}
+    assert lines[0] == "decode vs extraction" and set(SECTIONS) <= set(lines)
+    # decode vs extraction
+    assert result["n_frames"] == 12 and (result["height_px"], result["width_px"]) == (480, 640)
+    for key in ("decode_fps", "extract_fps", "extract_fps_cold", "ratio", "extract_vs_decode"):
+        assert _finite_positive(result[key]), key
+    assert result["ratio"] == pytest.approx(1.0 / result["extract_vs_decode"])
+    assert result["n_ok"] >= 10
+    groups = result["stage_groups_ms"]
+    for stage in ("decode", "registration", "measure", "  edges", "  angles"):
+        assert groups[stage] > 0, stage
+    assert groups["measure"] >= groups["  edges"]
+    # memory: each in its own process, the long video has long_factor times the frames
+    mem = result["memory"]
+    assert mem["short"]["n_frames"] == 12 and mem["long"]["n_frames"] == 36
+    for key in ("short", "long"):
+        assert 0 < mem[key]["import_rss_mib"] <= mem[key]["peak_rss_mib"] < 4096
+    assert mem["growth_mib"] == pytest.approx(mem["long"]["peak_rss_mib"] - mem["short"]["peak_rss_mib"])
+    # diagnosis on 5 speeds x 2 trials
+    diag = result["diagnosis"]
+    assert diag["speeds"] == 5 and diag["trials"] == 2 and diag["rows"] > 0 and diag["diagnose_s"] > 0
+    # workers
+    assert [w["workers"] for w in result["workers"]] == [1, 2]
+    for w in result["workers"]:
+        assert w["ok"] == w["videos"] == 2 and w["frames"] == 24 and _finite_positive(w["frames_per_s"])
+    text = format_bench(result)
+    for fragment in ("decode only", "full extract", "% of decode speed", "registration", "edges", "angles",
+                     "extraction short", "extraction long", "diagnosis", "batch workers", "bench total"):
+        assert fragment in text, fragment
+    assert "FAILED" not in text
+
+
+def test_bench_command_skips_sections(capsys, tiny_video):
+    code = main(["bench", "--video", str(tiny_video), "--quick", "--skip", "memory,diagnosis,workers"])
+    out, err = capsys.readouterr()
+    assert code == 0 and "% of decode speed" in out and "bench total" in out
+    assert "extraction short" not in out and "batch workers" not in out and "diagnosis " not in out
+
+
+def test_bench_command_rejects_bad_sizes(capsys):
+    assert main(["bench", "--skip", "bogus"]) == 2
+    assert "unknown --skip" in capsys.readouterr().err
+    assert main(["bench", "--trials", "1"]) == 2
+    assert "at least 2 trials" in capsys.readouterr().err
