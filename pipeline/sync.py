@@ -28,7 +28,10 @@ two records by at least ``min_overlap`` of the shorter one, then bounded scalar 
 A time shift of a ramp can be absorbed by the link, so the estimate is pinned mainly by the
 *features* of the curves: the start of motion (depth) or of contact (θ_con leaves 0, a kink in
 both signals), the stop, changes of slope. A pre-contact plateau in the video (θ_con = 0 exactly)
-and some log before and after the video make the estimate much better.
+and some log before and after the video make the estimate much better. A depth ramp alone pins
+nothing: a depth-based estimate needs a few measured frames of the robot standing
+(:func:`still_frames`), and without them ``signal="auto"`` aligns the force instead, with a
+warning.
 
 Uncertainty: ``uncertainty_s = sqrt(stat_se_s² + angle_noise_s² + timing_se_s²)``.
 
@@ -175,7 +178,8 @@ class OffsetEstimate:
         Standard uncertainty (s): ``sqrt(stat_se_s**2 + angle_noise_s**2 + timing_se_s**2)``.
     stat_se_s : float
         Statistical part (s), from the residuals (module docstring); inf when the fit does not
-        pin the offset.
+        pin the offset. When a depth log could not pin the offset and the force was aligned
+        instead, the difference between the two alignments is added in quadrature.
     angle_noise_s : float
         Force signal only (0 for depth): the time equivalent of one frame's angle noise (s), for
         the errors-in-variables and link-shape bias, which does not average out over frames.
@@ -609,6 +613,66 @@ def _has_depth(force: pd.DataFrame) -> bool:
     return bool(finite.mean() >= 0.8 and np.ptp(d[finite]) > 0) if finite.any() else False
 
 
+def _motion_span(force: pd.DataFrame) -> tuple[float, float]:
+    """Force-clock times (s) of the robot's first and last movement in the log's ``depth_mm``."""
+    ok = np.isfinite(force["depth_mm"].to_numpy(dtype=float))
+    t = force["time_s"].to_numpy(dtype=float)[ok]
+    d = force["depth_mm"].to_numpy(dtype=float)[ok]
+    tol = 1e-3 * float(np.ptp(d))  # a _has_depth log has ptp > 0
+    left = np.flatnonzero(np.abs(d - d[0]) > tol)  # away from where it started
+    arrived = np.flatnonzero(np.abs(d - d[-1]) > tol)  # not yet where it ended
+    return float(t[max(left[0] - 1, 0)]), float(t[min(arrived[-1] + 1, t.size - 1)])
+
+
+def still_frames(angles: pd.DataFrame, force: pd.DataFrame, offset_s: float) -> int:
+    """Measured frames that, at offset ``offset_s``, fall where the log has the robot standing and
+    show it standing.
+
+    A constant-speed ramp of ``depth_mm`` against ``theta_tip`` fits equally well at any shift
+    (the link absorbs it), so a depth-based offset is pinned only by frames from before the start
+    or after the stop of the robot's motion. A group of such frames (before the start, after the
+    stop) counts only when its ``theta_tip`` spans at most 4 times the angle noise (estimated from
+    second differences) and is long enough for a moving tip to leave that band (8 noise SDs at the
+    video's mean tip-angle rate): a video whose tip moves where the log stands contradicts the
+    offset, and a few slow frames cannot tell standing from moving.
+
+    Parameters
+    ----------
+    angles : DataFrame
+        Angles table on the video clock (``time_s`` s, ``theta_tip`` rad, ``ok``).
+    force : DataFrame
+        Force log with ``time_s`` (s) and ``depth_mm`` (mm).
+    offset_s : float
+        ``video_t0_s`` (s).
+
+    Returns
+    -------
+    int
+        The larger of the two groups' frame counts (0 for a group that moves).
+    """
+    t0, t1 = _motion_span(force)
+    t_log = force["time_s"].to_numpy(dtype=float)
+    good = angles["ok"].to_numpy(dtype=bool)
+    tf = angles["time_s"].to_numpy(dtype=float)[good] + offset_s
+    x = angles["theta_tip"].to_numpy(dtype=float)[good]
+    d2 = np.diff(x, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0) if d2.size else 0.0
+    inside = (tf >= t_log[0]) & (tf <= t_log[-1])
+    # a group must be long enough that a moving tip would leave the 4-sigma band within it
+    step = float(np.ptp(x)) / max(x.size - 1, 1)  # mean tip angle change a frame (rad)
+    need = 8.0 * sigma / step if step > 0 else math.inf
+    best = 0
+    for group in (inside & (tf < t0), inside & (tf > t1)):
+        n = int(np.count_nonzero(group))
+        if n >= need and float(np.ptp(x[group])) <= 4.0 * sigma + 1e-12:
+            best = max(best, n)
+    return best
+
+
+#: Fewest measured frames of the robot standing for a depth-based offset (see :func:`still_frames`).
+MIN_STILL_FRAMES = 3
+
+
 def estimate_offset(
     angles: pd.DataFrame, force: pd.DataFrame, *, cfg: SyncConfig = SyncConfig(), where: str = "sync"
 ) -> OffsetEstimate:
@@ -636,7 +700,8 @@ def estimate_offset(
     ------
     InputError
         The data cannot pin the offset (too few frames, no variation, no overlap, R² below
-        ``cfg.min_r2``).
+        ``cfg.min_r2``; for depth, too few frames of the robot standing, see :func:`still_frames`,
+        in which case ``signal="auto"`` falls back to the force).
     """
     signal = cfg.signal
     if signal == "auto":
@@ -644,6 +709,24 @@ def estimate_offset(
     elif signal == "depth" and not _has_depth(force):
         raise InputError(where, "signal 'depth' asked for, but the force log has no usable depth_mm column")
     est = _estimate_one(angles, force, signal, cfg, where)
+    if signal == "depth" and still_frames(angles, force, est.offset_s) < MIN_STILL_FRAMES:
+        why = (f"the video shows fewer than {MIN_STILL_FRAMES} measured frames of the robot standing (before its "
+               "start or after its stop), so depth_mm cannot pin the offset")
+        if cfg.signal == "depth":
+            raise InputError(where, f"{why}; give video_t0_s in the manifest")
+        try:
+            by_force = _estimate_one(angles, force, "force", cfg, where)
+        except InputError as exc:
+            raise InputError(where, f"{why}, and force_g against theta_con failed too ({exc.problem}); "
+                                    "give video_t0_s in the manifest") from None
+        # neither alignment is pinned by a feature of the motion: their disagreement is part of the error
+        spread = by_force.offset_s - est.offset_s
+        stat = math.hypot(by_force.stat_se_s, spread)
+        return replace(by_force, stat_se_s=stat,
+                       uncertainty_s=math.sqrt(stat**2 + by_force.angle_noise_s**2 + by_force.timing_se_s**2),
+                       warnings=by_force.warnings + (
+                           f"{why}: aligned force_g on theta_con instead (this absorbs any sensor lag); the depth "
+                           f"alignment differs by {spread:+.3g} s, which is counted in the uncertainty",))
     if signal == "depth":
         try:
             other = _estimate_one(angles, force, "force", cfg, where)

@@ -249,3 +249,23 @@ def test_cli_sync_missing_manifest(tmp_path, capsys):
     code, _, err = _run(capsys, "sync", "--manifest", tmp_path / "nope.csv", "--out", tmp_path / "s.csv")
     (line,) = _err_lines(err)
     assert code == 2 and "no such manifest file" in line
+
+
+def test_depth_ramp_without_standing_frames_falls_back_to_force():
+    """Videos that start and end with the robot moving (as tympani's own renders do): depth alone
+    cannot pin the offset, so ``auto`` aligns the force, says so, and counts the two alignments'
+    disagreement in an uncertainty that stays calibrated over 20 trials."""
+    z = []
+    for k in range(20):
+        rng = np.random.default_rng(100 + k)
+        t0 = float(rng.uniform(0.5, 2.0))
+        trial = Trial(speed_mm_s=(0.5, 1.5, 3.0, 5.0, 7.5)[k % 5], t0_s=t0, pre_s=0.0, post_s=0.0, with_depth=True)
+        angles, log = make_trial(rng, trial)
+        est = estimate_offset(angles, log, where="m.csv:2")
+        assert est.signal == "force" and any("standing" in w for w in est.warnings)
+        z.append((est.offset_s - t0) / est.uncertainty_s)
+    z = np.abs(np.array(z))
+    assert np.mean(z <= 2) >= 0.9
+    assert 0.2 <= np.sqrt(np.mean(z ** 2)) <= 1.5
+    with pytest.raises(InputError, match="standing"):
+        estimate_offset(angles, log, cfg=SyncConfig(signal="depth"), where="m.csv:2")
