@@ -473,11 +473,37 @@ def extract_video(
     table.attrs.update(
         registrations=log.registrations,
         checks=log.checks,
-        warnings=[*source.warnings, *log.warnings],
+        warnings=[*source.warnings, *log.warnings, *_stale_span_warnings(log.registrations, log.checks)],
         timing_s=log.timing_s,
         source=source.info(),
     )
     return table, log.first_registration
+
+
+def _stale_span_warnings(registrations: list[dict], checks: list[tuple[int, float]]) -> list[str]:
+    """One warning per re-registration triggered by a check: the frames since the previous
+    passing check (or registration) were measured before the move was seen and may have used
+    the old registration.
+
+    Parameters
+    ----------
+    registrations : list of dict
+        :attr:`ExtractLog.registrations`.
+    checks : list of (int, float)
+        :attr:`ExtractLog.checks`, ``(frame, residual_px)``.
+    """
+    out = []
+    for prev, reg in zip(registrations, registrations[1:]):
+        if reg.get("trigger") != "check":
+            continue
+        moved_at = int(reg["frame"])
+        passed = [f for f, _ in checks if prev["frame"] < f < moved_at]
+        first = max([int(prev["frame"]), *passed]) + 1
+        if first < moved_at:
+            out.append(f"camera moved between frames {first - 1} and {moved_at} (re-registered at {moved_at}); "
+                       f"frames {first}-{moved_at - 1} may have been measured with the previous registration "
+                       f"(a smaller --recheck-every narrows this)")
+    return out
 
 
 def _count_ok(csv_path: Path) -> tuple[int, int] | None:

@@ -183,12 +183,12 @@ def _run_extract(args: argparse.Namespace) -> int:
     else:
         summary = extract_batch(items, args.out, cfg, workers=args.workers, overwrite=args.overwrite,
                                 progress=not args.quiet, fps=args.fps)
-    atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)
-    counts = summary["status"].value_counts()
     for _, row in summary[summary["status"] == "failed"].iterrows():
         print(f"tympani: {row['error']}", file=sys.stderr)
     for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
         print(f"tympani: warning: {row['path']}: {' '.join(str(row['warnings']).split())}", file=sys.stderr)
+    atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)  # after the lines above: it may fail too
+    counts = summary["status"].value_counts()
     print(
         f"extract: {counts.get('ok', 0)} ok, {counts.get('skipped', 0)} skipped, {counts.get('failed', 0)} failed;"
         f" {int(summary['n_ok'].fillna(0).sum())} of {int(summary['n_frames'].fillna(0).sum())} frames measured -> {args.out}"
