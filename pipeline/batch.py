@@ -10,8 +10,9 @@ The layers follow trackpy's ``locate``/``batch``:
   a worker process or on a Dask worker), writes ``<trial>.angles.csv``,
   ``<trial>.registration.json`` and ``<trial>.provenance.json`` atomically, and skips videos
   whose outputs exist (resume) unless told to overwrite;
-- :func:`extract_batch` maps :func:`process_video` over videos with a pluggable executor and
-  returns one summary row per video; a failing video never stops the others.
+- :func:`extract_batch` maps :func:`process_video` over videos with a pluggable executor (this
+  process, a forkserver process pool, or a ``dask.distributed.Client`` whose workers share the
+  output folder) and returns one summary row per video; a failing video never stops the others.
 
 Registration happens once per video on its first ``register_frames`` frames; when
 ``vision.angles`` offers ``prepare_measurement``, its per-registration plan is built once and
@@ -38,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator
 import numpy as np
 import pandas as pd
 
-from pipeline.io import atomic_write_csv, atomic_write_json, provenance
+from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from vision.errors import InputError, is_input_error
 from vision.frames import Frame, FrameSource, open_frames, to_gray
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
@@ -57,6 +58,7 @@ __all__ = [
     "extract_video",
     "process_video",
     "extract_batch",
+    "is_dask_client",
     "output_paths",
     "trial_name",
     "read_manifest",
@@ -471,11 +473,37 @@ def extract_video(
     table.attrs.update(
         registrations=log.registrations,
         checks=log.checks,
-        warnings=[*source.warnings, *log.warnings],
+        warnings=[*source.warnings, *log.warnings, *_stale_span_warnings(log.registrations, log.checks)],
         timing_s=log.timing_s,
         source=source.info(),
     )
     return table, log.first_registration
+
+
+def _stale_span_warnings(registrations: list[dict], checks: list[tuple[int, float]]) -> list[str]:
+    """One warning per re-registration triggered by a check: the frames since the previous
+    passing check (or registration) were measured before the move was seen and may have used
+    the old registration.
+
+    Parameters
+    ----------
+    registrations : list of dict
+        :attr:`ExtractLog.registrations`.
+    checks : list of (int, float)
+        :attr:`ExtractLog.checks`, ``(frame, residual_px)``.
+    """
+    out = []
+    for prev, reg in zip(registrations, registrations[1:]):
+        if reg.get("trigger") != "check":
+            continue
+        moved_at = int(reg["frame"])
+        passed = [f for f, _ in checks if prev["frame"] < f < moved_at]
+        first = max([int(prev["frame"]), *passed]) + 1
+        if first < moved_at:
+            out.append(f"camera moved between frames {first - 1} and {moved_at} (re-registered at {moved_at}); "
+                       f"frames {first}-{moved_at - 1} may have been measured with the previous registration "
+                       f"(a smaller --recheck-every narrows this)")
+    return out
 
 
 def _count_ok(csv_path: Path) -> tuple[int, int] | None:
@@ -565,6 +593,8 @@ def process_video(
         warnings=warnings,
         timing_s={**table.attrs["timing_s"], "total": seconds},
     )
+    for f in files.values():  # left by a run killed outright while writing; never read
+        remove_stale_temps(f)
     written: list[Path] = []
     try:
         atomic_write_csv(files["angles"], table)
@@ -675,13 +705,35 @@ def _pool_context():
     return ctx
 
 
+def is_dask_client(executor: Any) -> bool:
+    """Whether ``executor`` is a ``dask.distributed.Client`` (checked without importing Dask)."""
+    return type(executor).__module__.split(".")[0] == "distributed" and hasattr(executor, "scheduler_info")
+
+
+def _submit(executor: Any, fn: Any, *args: Any) -> Any:
+    """``executor.submit(fn, *args)``; a Dask client gets ``pure=False`` (always run, even when
+    a task with the same arguments is still held by the cluster, e.g. after ``--overwrite``)."""
+    if is_dask_client(executor):
+        return executor.submit(fn, *args, pure=False)
+    return executor.submit(fn, *args)
+
+
 def _completed(futures: list) -> Iterator:
-    """Futures in completion order when they are ``concurrent.futures`` ones, else in order
-    (a Dask future's ``result()`` simply blocks)."""
+    """Futures in completion order for ``concurrent.futures`` and Dask futures, else in order
+    (any other future's ``result()`` simply blocks)."""
     if futures and all(isinstance(f, cf.Future) for f in futures):
         yield from cf.as_completed(futures)
+    elif futures and type(futures[0]).__module__.split(".")[0] == "distributed":
+        from distributed import as_completed
+
+        yield from as_completed(futures, loop=futures[0].client.loop)  # the client need not be the default
     else:
         yield from futures
+
+
+def _for_worker(item: VideoItem) -> VideoItem:
+    """``item`` with an absolute path: a worker may run in another folder (forkserver, Dask)."""
+    return VideoItem(os.path.abspath(item.path), item.trial, item.fps)
 
 
 def extract_batch(
@@ -711,8 +763,10 @@ def extract_batch(
         Processes to use when no ``executor`` is given; 1 runs in this process.
     executor : object, optional
         Anything with ``submit(fn, *args) -> future`` whose futures have ``result()``:
-        ``concurrent.futures`` executors, a ``dask.distributed.Client``, ... It is not shut
-        down here. Its workers get ``cv2.setNumThreads(1)``.
+        ``concurrent.futures`` executors, a ``dask.distributed.Client`` (tasks submitted with
+        ``pure=False``), ... It is not shut down here. Its workers get ``cv2.setNumThreads(1)``
+        and absolute paths; they must be able to import tympani and to read the videos and
+        write ``out_dir`` under the same paths as this process (a shared file system).
     overwrite : bool
         Redo videos whose outputs exist.
     progress : bool
@@ -731,13 +785,16 @@ def extract_batch(
     -----
     On KeyboardInterrupt with a pool of its own, videos not yet started are skipped, the
     running ones are interrupted (Ctrl-C reaches the whole process group) or, when only this
-    process got the signal, finish; then the interrupt is re-raised. Outputs are written
-    atomically, so no video is left with half-written files.
+    process got the signal, finish; then the interrupt is re-raised. With a given executor the
+    futures not yet finished are cancelled. Outputs are written atomically, so no video is left
+    with half-written files, and a rerun redoes exactly the videos that did not finish.
 
     Raises
     ------
     InputError
         Two videos would get the same trial name (their outputs would collide).
+    OutputError
+        ``out_dir`` cannot be created or written (checked before any video is started).
     """
     videos = _as_items(items)
     trials: dict[str, str] = {}
@@ -749,7 +806,7 @@ def extract_batch(
         trials[name] = item.path
         names.append(name)
     out = os.fspath(out_dir)
-    Path(out).mkdir(parents=True, exist_ok=True)
+    check_writable_dir(out)
     results: list[dict | None] = [None] * len(videos)
     from tqdm import tqdm
 
@@ -769,14 +826,16 @@ def extract_batch(
                                               initargs=(cancel,))
             else:
                 pool = executor
+            futures: list = []
             try:
-                futures = [pool.submit(_run_one, item, name, out, cfg, fps, overwrite, True, False)
+                out_abs = os.path.abspath(out)
+                futures = [_submit(pool, _run_one, _for_worker(item), name, out_abs, cfg, fps, overwrite, True, False)
                            for item, name in zip(videos, names)]
                 index = {id(f): i for i, f in enumerate(futures)}
                 for fut in _completed(futures):
                     i = index[id(fut)]
                     try:
-                        results[i] = fut.result()
+                        results[i] = {**fut.result(), "path": str(Path(videos[i].path))}
                     except Exception as exc:  # the worker itself died (crash, pickling, ...)
                         results[i] = _summary(names[i], Path(videos[i].path), "failed",
                                               error=_one_line(exc), error_kind="error")
@@ -786,6 +845,9 @@ def extract_batch(
                     cancel.set()
                     pool.shutdown(wait=True, cancel_futures=True)
                     own = False
+                else:  # a given executor (Dask, ...): drop what has not run yet
+                    for fut in futures:
+                        fut.cancel()
                 raise
             finally:
                 if own:

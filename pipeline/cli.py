@@ -84,10 +84,36 @@ def _configure_extract(p: argparse.ArgumentParser) -> None:
     p.add_argument("--manifest", metavar="M", help="manifest CSV (SPEC §6); its rows with a video are extracted")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask distributed cluster instead (e.g. tcp://host:8786); its workers need tympani "
+                        "and the same paths to the videos and --out (pip install 'tympani[distributed]')")
     p.add_argument("--fps", type=positive_float, metavar="F",
                    help="frame rate (frames/s): needed for folders of frames; overrides a video's own clock")
     p.add_argument("--overwrite", action="store_true", help="redo videos whose outputs exist (default: skip them)")
     _add_extract_options(p)
+
+
+def _dask_client(address: str):
+    """A ``dask.distributed.Client`` connected to ``address``.
+
+    Raises
+    ------
+    UsageError
+        Dask's distributed scheduler is not installed (exit 2).
+    InputError
+        The scheduler cannot be reached within Dask's connect timeout
+        (``distributed.comm.timeouts.connect``), or the address is malformed (exit 2).
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise UsageError("tympani extract: --scheduler needs Dask's distributed scheduler, which is not installed "
+                         "(pip install 'tympani[distributed]')") from None
+    try:
+        return Client(address, set_as_default=False)
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(address, f"cannot connect to the Dask scheduler ({reason})") from exc
 
 
 def _run_extract(args: argparse.Namespace) -> int:
@@ -96,19 +122,34 @@ def _run_extract(args: argparse.Namespace) -> int:
 
     if bool(args.videos) == bool(args.manifest):
         raise UsageError("tympani extract: give either VIDEO... or --manifest M (see 'tympani extract --help')")
+    if args.scheduler and args.workers != 1:
+        raise UsageError("tympani extract: give --workers or --scheduler, not both (see 'tympani extract --help')")
     if args.manifest:
-        table = read_manifest(args.manifest)
+        # missing files are reported per trial by the extraction (the others still run), and a
+        # missing force log does not concern extract
+        table = read_manifest(args.manifest, check_files=False)
         items = table[table["video"].notna()]
         if items.empty:
             raise InputError(args.manifest, "no trial has a video to extract")
     else:
         items = list(args.videos)
-    summary = extract_batch(items, args.out, _extract_config(args), workers=args.workers,
-                            overwrite=args.overwrite, progress=not args.quiet, fps=args.fps)
-    atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)
-    counts = summary["status"].value_counts()
+    cfg = _extract_config(args)
+    if args.scheduler:
+        client = _dask_client(args.scheduler)
+        try:
+            summary = extract_batch(items, args.out, cfg, executor=client, overwrite=args.overwrite,
+                                    progress=not args.quiet, fps=args.fps)
+        finally:
+            client.close()
+    else:
+        summary = extract_batch(items, args.out, cfg, workers=args.workers, overwrite=args.overwrite,
+                                progress=not args.quiet, fps=args.fps)
     for _, row in summary[summary["status"] == "failed"].iterrows():
         print(f"tympani: {row['error']}", file=sys.stderr)
+    for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
+        print(f"tympani: warning: {row['path']}: {' '.join(str(row['warnings']).split())}", file=sys.stderr)
+    atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)  # after the lines above: it may fail too
+    counts = summary["status"].value_counts()
     print(
         f"extract: {counts.get('ok', 0)} ok, {counts.get('skipped', 0)} skipped, {counts.get('failed', 0)} failed;"
         f" {int(summary['n_ok'].fillna(0).sum())} of {int(summary['n_frames'].fillna(0).sum())} frames measured -> {args.out}"

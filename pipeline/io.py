@@ -4,7 +4,12 @@ Every writer here puts the content in a temporary file in the target's own folde
 ``fsync``\\ s it, then renames it over the target with :func:`os.replace` (atomic on POSIX and
 Windows within one file system) and finally syncs the folder entry. A crash or Ctrl-C at any
 point leaves either the old file or the new one, plus at worst a hidden ``.<name>.*.tmp`` file
-that is removed when the failure is seen by Python.
+that is removed when the failure is seen by Python (:func:`remove_stale_temps` clears those left
+by a killed process).
+
+A write that the operating system refuses (read-only folder, permission denied, disk full, ...)
+raises :class:`OutputError`, an :class:`~vision.errors.InputError` that names the file the
+command could not write: the command line reports it in one line with exit status 2.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
+import errno
 import hashlib
 import json
 import math
@@ -25,7 +31,13 @@ from typing import IO, Any, Iterator
 import numpy as np
 import pandas as pd
 
+from vision.errors import InputError
+
 __all__ = [
+    "OutputError",
+    "output_error",
+    "check_writable_dir",
+    "remove_stale_temps",
     "atomic_open",
     "atomic_write_bytes",
     "atomic_write_text",
@@ -43,6 +55,101 @@ HASH_CHUNK_BYTES = 1 << 20
 
 
 # --------------------------------------------------------------------------- atomic writes
+
+
+class OutputError(InputError, OSError):
+    """An output file or folder that cannot be written (exit status 2, like bad input).
+
+    It is both an :class:`~vision.errors.InputError` (one line naming the file) and an
+    ``OSError`` (so code that catches ``OSError`` around writes still does).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file or folder that could not be written.
+    problem : str
+        One line, e.g. ``"cannot write (No space left on device)"``.
+    errno : int, optional
+        The operating system's error number (``errno.ENOSPC``, ``errno.EACCES``, ...).
+    """
+
+    def __init__(self, path: str | os.PathLike, problem: str, errno: int | None = None) -> None:
+        InputError.__init__(self, path, problem)
+        self.errno = errno
+
+    def __reduce__(self):  # keep errno across worker processes
+        return (type(self), (self.path, self.problem, self.errno))
+
+
+def output_error(path: str | os.PathLike, exc: OSError, what: str = "cannot write") -> OutputError:
+    """An :class:`OutputError` for ``path`` from the ``OSError`` that refused the write.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file or folder being written.
+    exc : OSError
+        What the operating system said.
+    what : str
+        The action that failed ("cannot write", "cannot create folder", ...).
+    """
+    reason = exc.strerror or (errno.errorcode.get(exc.errno or 0) if exc.errno else None) or str(exc) or type(exc).__name__
+    return OutputError(path, f"{what} ({reason})", exc.errno)
+
+
+def check_writable_dir(folder: str | os.PathLike) -> Path:
+    """Create ``folder`` if needed and check that files can be created in it.
+
+    The check really creates (and removes) a temporary file, so it also catches read-only
+    mounts and, for root, what permission bits would not show.
+
+    Returns
+    -------
+    Path
+        The folder.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be created or written.
+    """
+    out = Path(folder)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(out, exc, "cannot create the output folder") from exc
+    if not out.is_dir():
+        raise OutputError(out, "output folder is not a folder", errno.ENOTDIR)
+    try:
+        fd, tmp = _create_temp(out, "write-check")
+    except OSError as exc:
+        raise output_error(out, exc, "output folder is not writable") from exc
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        tmp.unlink()
+    return out
+
+
+def remove_stale_temps(path: str | os.PathLike) -> list[Path]:
+    """Remove the hidden temporary files an interrupted atomic write of ``path`` left behind.
+
+    Only a process killed outright (SIGKILL, power loss) leaves them; they are never read.
+    Call this only when no other process is writing ``path``.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    import glob
+
+    target = Path(path)
+    removed = []
+    for tmp in target.parent.glob(f".{glob.escape(target.name)}.*.tmp"):
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+            removed.append(tmp)
+    return removed
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -95,12 +202,21 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", *, encoding: str | Non
     file object
         Write to it; on normal exit it is flushed, fsynced and renamed over ``path``. On any
         exception (KeyboardInterrupt included) it is deleted and ``path`` is untouched.
+
+    Raises
+    ------
+    OutputError
+        The folder, the temporary file or the rename was refused, or a write failed (an
+        ``OSError`` raised inside the block, e.g. disk full, becomes one too).
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"mode must be 'w' or 'wb', not {mode!r}")
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = _create_temp(target.parent, target.name)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _create_temp(target.parent, target.name)
+    except OSError as exc:
+        raise output_error(target, exc) from exc
     try:
         binary = mode == "wb"
         with os.fdopen(fd, mode, encoding=None if binary else encoding, newline=None if binary else newline) as fh:
@@ -108,9 +224,11 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", *, encoding: str | Non
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        if isinstance(exc, OSError) and not isinstance(exc, InputError):
+            raise output_error(target, exc) from exc
         raise
     _fsync_dir(target.parent)
 
