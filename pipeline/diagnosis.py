@@ -123,6 +123,7 @@ __all__ = [
     "KERNEL_FORMS",
     "ArcQuadrature",
     "lag_foh",
+    "smooth_angles",
     "dead_time",
     "lack_of_fit",
     "systematic_gap",
@@ -159,6 +160,12 @@ class DiagnosisConfig:
     ----------
     rows_per_trial : int
         Rows kept per trial for fitting, evenly spaced in time (count).
+    angle_smoothing_s : float
+        Width (s) of a quadratic Savitzky–Golay smoother applied to each trial's ``theta_tip`` and
+        ``theta_bot`` before the models see them (0: off). Angles measured frame by frame carry
+        independent noise that the force does not: through the steep force–angle curve it is the
+        largest error left in a correct model's prediction (about 0.04 g of 0.045 g on effect-free
+        synthetic data with 0.01 rad angle noise; 0.025 g after smoothing over 0.6 s).
     effects : tuple of str
         Candidate effects (names of :data:`pipeline.effects.EFFECTS`).
     friction : FrictionParams
@@ -200,6 +207,7 @@ class DiagnosisConfig:
     """
 
     rows_per_trial: int = 56
+    angle_smoothing_s: float = 0.6
     effects: tuple[str, ...] = tuple(EFFECTS)
     friction: FrictionParams = field(default_factory=FrictionParams)
     trial_gain: bool = True
@@ -419,6 +427,46 @@ def _phases(trial: np.ndarray, time_s: np.ndarray, standing: np.ndarray) -> tupl
     return phase, label
 
 
+def smooth_angles(data: pd.DataFrame, width_s: float) -> pd.DataFrame:
+    """Each trial's ``theta_tip`` and ``theta_bot`` smoothed in time; ``theta_con`` recomputed.
+
+    A quadratic Savitzky–Golay filter over ``width_s`` (rounded to an odd number of samples at the
+    trial's median sampling interval) on the finite values of each trial, sorted by time; trials
+    with fewer samples than the window are left as they are.
+
+    Parameters
+    ----------
+    data : pandas.DataFrame
+        Synced rows (``trial``, ``time_s`` s, ``theta_tip`` and ``theta_bot`` rad).
+    width_s : float
+        Window width (s); 0 returns ``data`` unchanged.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with smoothed angles (same rows, same order).
+    """
+    if width_s <= 0:
+        return data
+    from scipy.signal import savgol_filter
+
+    out = data.copy()
+    t_all = out["time_s"].to_numpy(float)
+    cols = {c: out[c].to_numpy(float).copy() for c in ("theta_tip", "theta_bot")}
+    for idx in out.groupby("trial", sort=False).indices.values():
+        idx = idx[np.argsort(t_all[idx], kind="stable")]
+        dt = float(np.median(np.diff(t_all[idx]))) if idx.size > 1 else 0.0
+        n = int(round(width_s / dt)) | 1 if dt > 0 else 0
+        for x in cols.values():
+            ok = idx[np.isfinite(x[idx])]
+            if n >= 5 and ok.size > n:
+                x[ok] = savgol_filter(x[ok], n, 2, mode="interp")
+    for c, x in cols.items():
+        out[c] = x
+    out["theta_con"] = (out["theta_tip"] - out["theta_bot"]).clip(lower=0.0)
+    return out
+
+
 def prepare(
     table: pd.DataFrame,
     config: DiagnosisConfig = DiagnosisConfig(),
@@ -483,7 +531,7 @@ def prepare(
         data = data[data["speed_mm_s"].isin(enough.index)]
     if np.ptp(data["force_g"].to_numpy(float)) <= 0:
         raise InputError(source, f"force_g is constant in every usable row; {DATA_NEEDED}")
-    data = data.reset_index(drop=True)
+    data = smooth_angles(data.reset_index(drop=True), config.angle_smoothing_s)
     standing_known = "depth_mm" in data.columns and pd.to_numeric(data["depth_mm"], errors="coerce").notna().any()
     standing_all = _not_moving(data) if standing_known else np.zeros(len(data), dtype=bool)
 
