@@ -26,6 +26,7 @@ from pipeline.diagnosis import (
     lag_foh,
     predict,
     prepare,
+    smooth_angles,
 )
 from pipeline.effects import EFFECTS, EffectContext, first_order_lag
 from pipeline.synthetic import paper_case, synthetic_dataset
@@ -286,3 +287,25 @@ def test_small_blind_evaluation():
     assert summary["residual_detectable_cases"] >= 3
     assert summary["accuracy_residual_detectable"] >= 0.8
     assert summary["median_true_shrink_residual_detectable_pct"] > 60
+
+
+def test_smooth_angles_keeps_trends_and_cuts_noise():
+    """Quadratic trends pass unchanged; white angle noise shrinks; rows, order and trials are kept."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 6.0, 0.01)
+    tip = 0.2 + 0.4 * t + 0.02 * t**2
+    bot = np.where(t > 2.0, 0.1 + 0.05 * (t - 2.0) ** 2, tip)
+    rows = []
+    for k, shift in enumerate((0.0, 0.3)):
+        rows.append(pd.DataFrame(dict(trial=f"t{k}", time_s=t + shift, theta_tip=tip, theta_bot=np.minimum(bot, tip))))
+    clean = pd.concat(rows, ignore_index=True).sample(frac=1.0, random_state=0)  # rows in any order
+    noisy = clean.assign(theta_tip=clean["theta_tip"] + rng.normal(0, 0.01, len(clean)))
+    out = smooth_angles(noisy, 0.6)
+    assert out.index.equals(noisy.index) and out["trial"].equals(noisy["trial"])
+    err_before = (noisy["theta_tip"] - clean["theta_tip"]).std()
+    err_after = (out["theta_tip"] - clean["theta_tip"]).std()
+    assert err_after < 0.45 * err_before
+    same = smooth_angles(clean, 0.6)
+    np.testing.assert_allclose(same["theta_tip"], clean["theta_tip"], atol=1e-9)  # a quadratic is kept exactly
+    assert (same["theta_con"] >= 0).all()
+    assert smooth_angles(noisy, 0.0) is noisy
