@@ -22,7 +22,6 @@ from typing import Any, Protocol
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .geometry import (
     DEFAULT_ARRAY,
@@ -674,7 +673,8 @@ def _fluid_level(
     q = int(round(percentile / 100.0 * (block - 1)))
     level = np.partition(blocks, q, axis=1)[:, q]
     centres = block * np.arange(n_blocks) + 0.5 * (block - 1)
-    envelope = ndimage.maximum_filter1d(level, size=2 * reach + 1, mode="nearest")
+    # running maximum (scipy.ndimage.maximum_filter1d(mode="nearest") at a fraction of its cost)
+    envelope = cv2.dilate(level[None, :], np.ones((1, 2 * reach + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)[0]
     fluid_like = level >= floor * envelope
     if not fluid_like.all() and fluid_like.any():
         level = np.interp(centres, centres[fluid_like], level[fluid_like])
