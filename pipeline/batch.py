@@ -705,10 +705,8 @@ def _run_one(item: VideoItem, trial: str, out_dir: str, cfg: ExtractConfig, fps:
 def _init_worker(cancel_event: Any) -> None:
     global _CANCEL_EVENT
     import cv2
-    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
-    threadpool_limits(limits=1)  # one BLAS thread per worker too: the workers share the cores
     _CANCEL_EVENT = cancel_event
 
 

@@ -40,6 +40,16 @@ def _assert_same(a: FrameMeasurement, b: FrameMeasurement) -> None:
     assert set(a.timings) == set(b.timings) and ("time_ms" in a.extras) == ("time_ms" in b.extras)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _one_opencv_thread():
+    """Single-threaded OpenCV in this module, restored after it: a process whose OpenCV
+    threads are busy cannot be forked safely, and test_batch forks a pool after this module."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(threads)
+
+
 @pytest.fixture(scope="module")
 def videos() -> list[tuple[object, list[np.ndarray]]]:
     """Per pose: its plan and a batch of grey frames (some with the array hidden)."""
