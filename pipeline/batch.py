@@ -110,6 +110,10 @@ class ExtractConfig:
         recheck_margin_px`` of the current registration.
     recheck_margin_px : float
         See ``recheck_factor`` (px).
+    measure_batch : int
+        Frames measured together by ``vision.angles.measure_frames_batch`` (same results as
+        one at a time, less overhead per frame); 1 measures each frame on its own. At most this
+        many decoded frames are held back.
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -120,12 +124,15 @@ class ExtractConfig:
     registration: Any = field(default_factory=_default_registration_config)
     recheck_factor: float = 2.0
     recheck_margin_px: float = 0.6
+    measure_batch: int = 32
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
             raise ValueError(f"recheck_every must be an integer >= 0, not {self.recheck_every!r}")
         if int(self.register_frames) != self.register_frames or self.register_frames < 1:
             raise ValueError(f"register_frames must be an integer >= 1, not {self.register_frames!r}")
+        if int(self.measure_batch) != self.measure_batch or self.measure_batch < 1:
+            raise ValueError(f"measure_batch must be an integer >= 1, not {self.measure_batch!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
             raise ValueError("recheck_factor must be >= 1 and recheck_margin_px >= 0")
 
@@ -266,8 +273,11 @@ def measure_frames(
     Yields
     ------
     MeasuredFrame
-        In frame order. At most ``cfg.register_frames`` frames are held back while a
-        registration is pending.
+        In frame order. Frames measured with the same plan are measured ``cfg.measure_batch``
+        at a time (``vision.angles.measure_frames_batch``, when the measurement has a plan);
+        at most ``cfg.measure_batch`` frames, or ``cfg.register_frames`` while a registration
+        is pending, are held back. The ``measure`` time of a batch is shared equally among its
+        frames.
 
     Raises
     ------
@@ -287,24 +297,57 @@ def measure_frames(
 
     plan: Any = None  # what measure_frame gets as its registration (see register_pending)
 
-    def measure(frame: Frame, gray: np.ndarray) -> MeasuredFrame:
-        t0 = time.perf_counter()
-        try:
-            m = angles_mod.measure_frame(gray, plan, phantom, cfg.array, cfg.measure)
-            result = m.to_row()
-        except Exception as exc:  # a failed frame keeps its row
-            m = None
-            result = {"ok": False, "reason": f"measurement raised {_one_line(exc)}"}
+    queue: list[tuple[Frame, np.ndarray]] = []  # frames waiting to be measured with the current plan
+
+    def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float) -> MeasuredFrame:
+        """The row of one measurement ``m`` (an exception when it raised), ``seconds`` spent."""
+        if isinstance(m, Exception):  # a failed frame keeps its row
+            result = {"ok": False, "reason": f"measurement raised {_one_line(m)}"}
             if log.n_exceptions == 0:
-                log.warnings.append(f"frame {frame.index}: measurement raised {_one_line(exc)}")
+                log.warnings.append(f"frame {frame.index}: measurement raised {_one_line(m)}")
             log.n_exceptions += 1
-        log.add_time("measure", time.perf_counter() - t0)
-        for stage, seconds in (getattr(m, "timings", None) or {}).items():
-            log.add_time(f"measure.{stage}", seconds)
+            m = None
+        else:
+            result = m.to_row()
+        log.add_time("measure", seconds)
+        for stage, stage_s in (getattr(m, "timings", None) or {}).items():
+            log.add_time(f"measure.{stage}", stage_s)
         row = _frame_row(trial, frame, result, epoch)
         log.n_frames += 1
         log.n_ok += bool(row["ok"])
         return MeasuredFrame(frame, gray, registration, epoch, m, row)
+
+    def measure(frame: Frame, gray: np.ndarray) -> MeasuredFrame:
+        t0 = time.perf_counter()
+        try:
+            m = angles_mod.measure_frame(gray, plan, phantom, cfg.array, cfg.measure)
+            m.to_row()
+        except Exception as exc:
+            m = exc
+        return measured(frame, gray, m, time.perf_counter() - t0)
+
+    def flush() -> list[MeasuredFrame]:
+        """Measure the queued frames (together when the measurement has a plan for them)."""
+        items = queue[:]
+        queue.clear()
+        batch_fn = getattr(angles_mod, "measure_frames_batch", None)
+        if len(items) < 2 or batch_fn is None or plan is registration:  # no plan: one at a time
+            return [measure(f, g) for f, g in items]
+        t0 = time.perf_counter()
+        try:
+            ms = list(batch_fn([g for _, g in items], plan))
+            if len(ms) != len(items):
+                raise RuntimeError(f"measure_frames_batch gave {len(ms)} results for {len(items)} frames")
+            for m in ms:
+                m.to_row()
+        except Exception:  # one at a time instead, so that only the frame that raises fails
+            return [measure(f, g) for f, g in items]
+        share = (time.perf_counter() - t0) / len(items)
+        return [measured(f, g, m, share) for (f, g), m in zip(items, ms)]
+
+    def enqueue(frame: Frame, gray: np.ndarray) -> list[MeasuredFrame]:
+        queue.append((frame, gray))
+        return flush() if len(queue) >= cfg.measure_batch else []
 
     def register_pending() -> None:
         nonlocal registration, plan, epoch, last_registered_at
@@ -364,7 +407,7 @@ def measure_frames(
                 bar.update(1)
             if registration is not None and not pending:
                 if not _check_due(cfg, frame.index, last_registered_at):
-                    yield measure(frame, gray)
+                    yield from enqueue(frame, gray)
                     continue
                 t2 = time.perf_counter()
                 residual = float(reg_mod.check(gray, registration, phantom))
@@ -372,20 +415,22 @@ def measure_frames(
                 log.checks.append((frame.index, residual))
                 threshold = cfg.recheck_threshold_px(registration)
                 if residual <= threshold:
-                    yield measure(frame, gray)
+                    yield from enqueue(frame, gray)
                     continue
                 # NaN or too large: the camera moved; register again from this frame on
                 trigger = {"trigger": "check", "check_residual_px": residual, "threshold_px": threshold}
             pending.append((frame, gray))
             if len(pending) >= cfg.register_frames:
+                yield from flush()  # the frames before these, with the plan they were measured against
                 register_pending()
                 for f, g in pending:
-                    yield measure(f, g)
+                    yield from enqueue(f, g)
                 pending = []
+        yield from flush()
         if pending:  # video (or its rest) shorter than register_frames
             register_pending()
-            for f, g in pending:
-                yield measure(f, g)
+            queue.extend(pending)
+            yield from flush()
             pending = []
     finally:
         close = getattr(frames, "close", None)
