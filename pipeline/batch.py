@@ -162,6 +162,9 @@ class ExtractLog:
         Frames measured, frames with ``ok``, frames whose measurement raised.
     first_registration : Registration or None
         The registration frame 0 was measured with.
+    in_force : list of tuple
+        ``(registration, plan)`` for each entry of ``registrations`` (the plan is what the
+        measurement gets, see :func:`measure_frames`).
     """
 
     registrations: list[dict] = field(default_factory=list)
@@ -172,6 +175,7 @@ class ExtractLog:
     n_ok: int = 0
     n_exceptions: int = 0
     first_registration: Any = None
+    in_force: list[tuple[Any, Any]] = field(default_factory=list)
 
     def add_time(self, stage: str, seconds: float) -> None:
         self.timing_s[stage] = self.timing_s.get(stage, 0.0) + float(seconds)
@@ -247,6 +251,17 @@ def _is_registration_failure(exc: BaseException, reg_module: Any) -> bool:
     return is_input_error(exc) or (isinstance(failure, type) and isinstance(exc, failure))
 
 
+def _try_measure(angles_mod: Any, gray: np.ndarray, plan: Any, cfg: ExtractConfig) -> Any:
+    """``angles_mod.measure_frame`` of one grey frame, or the exception it raised (also from
+    ``to_row``): a failed frame keeps its row."""
+    try:
+        m = angles_mod.measure_frame(gray, plan, cfg.phantom, cfg.array, cfg.measure)
+        m.to_row()
+        return m
+    except Exception as exc:
+        return exc
+
+
 def measure_frames(
     source: FrameSource,
     cfg: ExtractConfig,
@@ -319,11 +334,7 @@ def measure_frames(
 
     def measure(frame: Frame, gray: np.ndarray) -> MeasuredFrame:
         t0 = time.perf_counter()
-        try:
-            m = angles_mod.measure_frame(gray, plan, phantom, cfg.array, cfg.measure)
-            m.to_row()
-        except Exception as exc:
-            m = exc
+        m = _try_measure(angles_mod, gray, plan, cfg)
         return measured(frame, gray, m, time.perf_counter() - t0)
 
     def flush() -> list[MeasuredFrame]:
@@ -384,6 +395,7 @@ def measure_frames(
                 t0 = time.perf_counter()
                 plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
                 log.add_time("prepare", time.perf_counter() - t0)
+            log.in_force.append((new, plan))
         registration = new
         last_registered_at = pending[0][0].index
 
@@ -498,7 +510,8 @@ def extract_video(
         One row per decoded frame: :data:`ANGLE_COLUMNS`, then the measurement's extra scalar
         columns, then ``reg_epoch``. Failed frames have ``ok`` False, NaN angles and a
         ``reason``. ``table.attrs`` holds ``registrations``, ``checks``, ``warnings``
-        (decoder and measurement), ``timing_s`` and ``source`` (see :class:`ExtractLog`).
+        (decoder, measurement, and the camera moves whose frames :func:`remeasure_after_moves`
+        measured again), ``timing_s`` and ``source`` (see :class:`ExtractLog`).
     registration : Registration
         The first registration (the one frame 0 was measured with).
 
@@ -511,6 +524,9 @@ def extract_video(
     source = open_frames(path, fps=fps)
     log = ExtractLog()
     rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress)]
+    t0 = time.perf_counter()
+    moves = remeasure_after_moves(source, rows, log, cfg, name)
+    log.add_time("remeasure", time.perf_counter() - t0)
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
     table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
@@ -518,37 +534,85 @@ def extract_video(
     table.attrs.update(
         registrations=log.registrations,
         checks=log.checks,
-        warnings=[*source.warnings, *log.warnings, *_stale_span_warnings(log.registrations, log.checks)],
+        warnings=[*source.warnings, *log.warnings, *moves],
         timing_s=log.timing_s,
         source=source.info(),
     )
     return table, log.first_registration
 
 
-def _stale_span_warnings(registrations: list[dict], checks: list[tuple[int, float]]) -> list[str]:
-    """One warning per re-registration triggered by a check: the frames since the previous
-    passing check (or registration) were measured before the move was seen and may have used
-    the old registration.
+def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig,
+                          trial: str) -> list[str]:
+    """Measure again, with the new registration, the frames seen after the camera moved but
+    before a check noticed it.
+
+    A check every ``cfg.recheck_every`` frames finds a move late, so the frames between the move
+    and the check were measured with the old pose. For each re-registration that a check
+    triggered, the frames after the last known-good one (the previous registration's own frames or
+    its last passing check) are decoded again, in order, and checked against the old
+    registration; from the first that fails, they are measured with the new registration and get
+    its ``reg_epoch``. That entry of ``log.registrations`` gets ``moved_at_frame``.
 
     Parameters
     ----------
-    registrations : list of dict
-        :attr:`ExtractLog.registrations`.
-    checks : list of (int, float)
-        :attr:`ExtractLog.checks`, ``(frame, residual_px)``.
+    source : FrameSource
+        The video, decoded again from the start (seeking is not frame-exact in every codec).
+    rows : list of dict
+        The frame rows of :func:`measure_frames`, in frame order; replaced in place.
+    log : ExtractLog
+        Its registrations, checks and ``in_force``.
+    cfg : ExtractConfig
+        Settings (check threshold, phantom, measurement).
+    trial : str
+        Trial name of the rows.
+
+    Returns
+    -------
+    list of str
+        One line per re-measured span.
     """
-    out = []
-    for prev, reg in zip(registrations, registrations[1:]):
-        if reg.get("trigger") != "check":
+    import vision.angles as angles_mod  # looked up at call time: replaceable in tests
+    import vision.registration as reg_mod
+
+    notes: list[str] = []
+    regs = log.registrations
+    at = {int(r["frame"]): i for i, r in enumerate(rows)}
+    for j in range(1, min(len(regs), len(log.in_force))):
+        if regs[j].get("trigger") != "check":
             continue
-        moved_at = int(reg["frame"])
-        passed = [f for f, _ in checks if prev["frame"] < f < moved_at]
-        first = max([int(prev["frame"]), *passed]) + 1
-        if first < moved_at:
-            out.append(f"camera moved between frames {first - 1} and {moved_at} (re-registered at {moved_at}); "
-                       f"frames {first}-{moved_at - 1} may have been measured with the previous registration "
-                       f"(a smaller --recheck-every narrows this)")
-    return out
+        moved_at = int(regs[j]["frame"])
+        good = int(regs[j - 1]["frame"]) + int(regs[j - 1].get("n_frames_used", 1)) - 1
+        good = max([good, *(f for f, _ in log.checks if good < f < moved_at)])  # checks before moved_at passed
+        if good + 1 >= moved_at:
+            continue
+        (old, _), (_, plan) = log.in_force[j - 1], log.in_force[j]
+        threshold = cfg.recheck_threshold_px(old)
+        first = None
+        frames = iter(source)
+        try:
+            for frame in frames:
+                if frame.index <= good:
+                    continue
+                if frame.index >= moved_at:
+                    break
+                gray = to_gray(frame.image)
+                if first is None:
+                    if float(reg_mod.check(gray, old, cfg.phantom)) <= threshold:  # NaN: moved
+                        continue
+                    first = frame.index
+                m = _try_measure(angles_mod, gray, plan, cfg)
+                result = ({"ok": False, "reason": f"measurement raised {_one_line(m)}"} if isinstance(m, Exception)
+                          else m.to_row())
+                rows[at[frame.index]] = _frame_row(trial, frame, result, int(regs[j]["epoch"]))
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                close()
+        regs[j]["moved_at_frame"] = first if first is not None else moved_at
+        if first is not None:
+            notes.append(f"camera moved at frame {first} (seen by the check at {moved_at}); frames {first}-"
+                         f"{moved_at - 1} measured again with the new registration")
+    return notes
 
 
 def _count_ok(csv_path: Path) -> tuple[int, int] | None:

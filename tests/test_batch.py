@@ -168,7 +168,10 @@ def test_camera_bump_triggers_re_registration(tmp_path, monkeypatch):
     assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
     assert regs[1]["check_residual_px"] == 50.0 and regs[1]["threshold_px"] == pytest.approx(1.6)
     assert [f for f, _ in table.attrs["checks"]] == [5, 10, 15, 20]
-    assert table.loc[table["frame"] < 15, "reg_epoch"].eq(0).all() and table.loc[table["frame"] >= 15, "reg_epoch"].eq(1).all()
+    # the check at 15 saw the move; frames 12-14 (after the passing check at 10) are measured again
+    assert regs[1]["moved_at_frame"] == 12
+    assert table.loc[table["frame"] < 12, "reg_epoch"].eq(0).all() and table.loc[table["frame"] >= 12, "reg_epoch"].eq(1).all()
+    assert any("camera moved at frame 12" in w for w in table.attrs["warnings"])
     assert len(table) == 24 and reg.pose.centre_x_px == fakes.W / 2  # the first registration is returned
 
 

@@ -269,22 +269,24 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
     after = CameraPose(216.0, 141.0, 0.41, 17.3, False)  # 13 px, 3.4 degrees, 1.8 % off
     spec = VideoSpec(pose=before, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
                      end_depth_mm=12.0, nuisance=Nuisance(noise_sigma=2.0), max_frames=30)
-    bump = 15
+    bump = 13  # between the checks at 10 and 15: frames 13-14 are first measured with the old pose
     scenes = {p: Scene(p, spec.width, spec.height, spec.appearance, spec.nuisance, rng=np.random.default_rng(1))
               for p in (before, after)}
     truth = _render_frames(tmp_path / "bumped.mp4", spec, lambda i: scenes[before if i < bump else after])
     out = tmp_path / "out"
     code, _, err = _run(capsys, "extract", tmp_path / "bumped.mp4", "--out", out, "-q", "--recheck-every", "5",
                         "--register-frames", "3")
-    assert code == 0 and _one_line(err).startswith(f"tympani: warning: {tmp_path / 'bumped.mp4'}: camera moved between "
-                                                   f"frames 10 and {bump} (re-registered at {bump}); frames 11-14 may")
+    assert code == 0 and _one_line(err) == (f"tympani: warning: {tmp_path / 'bumped.mp4'}: camera moved at frame {bump} "
+                                            "(seen by the check at 15); frames 13-14 measured again with the new "
+                                            "registration")
     regs = json.loads((out / "bumped.registration.json").read_text())["registrations"]
-    assert [r["frame"] for r in regs] == [0, bump] and regs[1]["trigger"] == "check"
+    assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
+    assert regs[1]["moved_at_frame"] == bump
     assert regs[1]["check_residual_px"] > regs[1]["threshold_px"]
     assert abs(regs[1]["centre_x_px"] - after.centre_x_px) < 1.0 and abs(regs[1]["centre_y_px"] - after.centre_y_px) < 1.0
     assert abs(regs[1]["rotation_rad"] - after.rotation_rad) < 0.01
     prov = json.loads((out / "bumped.provenance.json").read_text())
-    assert any(c["frame"] == bump for c in prov["checks"])
+    assert any(c["frame"] == 15 for c in prov["checks"])
     table = pd.read_csv(out / "bumped.angles.csv").merge(truth, on="frame", suffixes=("", "_true"))
     post = table[table["frame"] >= bump]
     assert post["reg_epoch"].eq(1).all() and table.loc[table["frame"] < bump, "reg_epoch"].eq(0).all()
