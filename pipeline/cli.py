@@ -93,7 +93,7 @@ def _configure_extract(p: argparse.ArgumentParser) -> None:
     _add_extract_options(p)
 
 
-def _dask_client(address: str):
+def _dask_client(address: str, command: str = "extract"):
     """A ``dask.distributed.Client`` connected to ``address``.
 
     Raises
@@ -107,7 +107,7 @@ def _dask_client(address: str):
     try:
         from distributed import Client
     except ImportError:
-        raise UsageError("tympani extract: --scheduler needs Dask's distributed scheduler, which is not installed "
+        raise UsageError(f"tympani {command}: --scheduler needs Dask's distributed scheduler, which is not installed "
                          "(pip install 'tympani[distributed]')") from None
     try:
         return Client(address, set_as_default=False)
@@ -333,6 +333,8 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--manifest", required=True, metavar="M", help="manifest CSV (SPEC §6)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (report.html and every table)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="processes for the extraction (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="extract on a Dask distributed cluster instead (as 'tympani extract --scheduler')")
     p.add_argument("--fps", type=positive_float, metavar="F",
                    help="frame rate (frames/s) for videos whose manifest row gives none (folders of frames)")
     p.add_argument("--scenario", default="S4", metavar="S",
@@ -379,7 +381,15 @@ def _run_run(args: argparse.Namespace) -> int:
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--overwrite"] if args.overwrite else []
-    result = run_pipeline(args.manifest, args.out, _run_config(args), command=command)
+    command += ["--scheduler", args.scheduler] if args.scheduler else []
+    if args.scheduler and args.workers != 1:
+        raise UsageError("tympani run: give --workers or --scheduler, not both (see 'tympani run --help')")
+    client = _dask_client(args.scheduler, "run") if args.scheduler else None
+    try:
+        result = run_pipeline(args.manifest, args.out, _run_config(args), command=command, executor=client)
+    finally:
+        if client is not None:
+            client.close()
     _print_run(result)
     return result.exit_status
 

@@ -250,7 +250,7 @@ def _log(cfg: RunConfig, text: str) -> None:
 # --------------------------------------------------------------------------- stages
 
 
-def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord) -> pd.DataFrame:
+def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord, executor: Any = None) -> pd.DataFrame:
     """Angles tables of the manifest's videos (rows that give an angles table are not extracted)."""
     from pipeline.batch import SUMMARY_COLUMNS, extract_batch
     from pipeline.io import atomic_write_csv
@@ -261,7 +261,7 @@ def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord
         rec.status, rec.message = "not_run", "no video to extract (the manifest gives angles tables)"
         return pd.DataFrame(columns=list(SUMMARY_COLUMNS))
     angles_dir = out / "angles"
-    summary = _timed(rec, lambda: extract_batch(rows, angles_dir, cfg.extract, workers=cfg.workers,
+    summary = _timed(rec, lambda: extract_batch(rows, angles_dir, cfg.extract, workers=cfg.workers, executor=executor,
                                                 overwrite=cfg.overwrite, progress=cfg.progress, fps=cfg.fps))
     atomic_write_csv(angles_dir / "extract_summary.csv", summary)
     counts = summary["status"].value_counts()
@@ -469,7 +469,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
 
 
 def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: RunConfig = RunConfig(),
-                 *, command: Sequence[str] | None = None) -> RunResult:
+                 *, command: Sequence[str] | None = None, executor: Any = None) -> RunResult:
     """Run every stage on a manifest and write the report (see the module docstring).
 
     Parameters
@@ -482,6 +482,9 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
         Settings.
     command : sequence of str, optional
         The command line, recorded in ``run.json`` and the report.
+    executor : object, optional
+        Runs the extraction instead of ``cfg.workers`` local processes (e.g. a
+        ``dask.distributed.Client``; see :func:`pipeline.batch.extract_batch`).
 
     Returns
     -------
@@ -510,7 +513,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
 
     def do_extract() -> None:
         nonlocal extract
-        extract = _extract(table, out, cfg, stages["extract"])
+        extract = _extract(table, out, cfg, stages["extract"], executor)
         errors.extend(str(e) for e in extract.loc[extract["status"] == "failed", "error"])
         if (extract["error_kind"] == "error").any():
             raise RuntimeError("; ".join(extract.loc[extract["error_kind"] == "error", "error"]))

@@ -69,12 +69,21 @@ def test_extract_on_a_dask_cluster_equals_the_local_run(experiment, tmp_path, ca
         # a rerun through the cluster resumes: every video is skipped
         assert main(["extract", "--manifest", str(experiment), "--out", str(remote), "-q", "--scheduler", address]) == 0
         assert "3 skipped" in capsys.readouterr()[0]
+        # tympani run extracts through the cluster too (one trial a speed: no diagnosis, the report says so)
+        code = main(["run", "--manifest", str(experiment), "--out", str(tmp_path / "run"), "-q", "--scheduler", address])
+        assert code == 0, capsys.readouterr()[1]
+        assert (tmp_path / "run" / "report.html").exists()
+        assert "--scheduler" in json.loads((tmp_path / "run" / "run.json").read_text())["command"]
     expected, got = _angles(local), _angles(remote)
     assert len(expected) == 3 and got.keys() == expected.keys()
     for name, table in expected.items():
         pd.testing.assert_frame_equal(got[name], table, check_exact=True)
         assert table["ok"].any()
     assert _registrations(remote) == _registrations(local)
+    ran = _angles(tmp_path / "run" / "angles")
+    assert ran.keys() == expected.keys()
+    for name, table in expected.items():
+        pd.testing.assert_frame_equal(ran[name], table, check_exact=True)
     assert not [p.name for p in remote.iterdir() if p.name.endswith(".tmp")]
     summary = pd.read_csv(remote / "extract_summary.csv")
     assert summary["status"].tolist() == ["skipped"] * 3
