@@ -815,13 +815,11 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[
     below = cover < level
     lo_idx = ((below & (j < s)) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1  # -1: none
     hi_idx = m - ((below & (j > s)) * (np.int16(m) - j)).max(axis=0).astype(np.intp)  # m: none
-    low = np.full(n, np.nan)
-    ok = lo_idx >= 0
-    low[ok] = _crossing(cover, lo_idx[ok], cols[ok], level)
-    high = np.full(n, np.nan)
-    ok = hi_idx < m
-    high[ok] = _crossing(cover, hi_idx[ok] - 1, cols[ok], level)
-    return low, high
+    both = np.full(2 * n, np.nan)  # low, then high
+    j_both = np.concatenate([lo_idx, hi_idx - 1])
+    ok = np.concatenate([lo_idx >= 0, hi_idx < m])
+    both[ok] = _crossing(cover, j_both[ok], np.concatenate([cols, cols])[ok], level)
+    return both[:n], both[n:]
 
 
 def _window_line(sums: np.ndarray, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -880,7 +878,7 @@ def _plateaus(
     near, far = plateau_px
     dist = np.array([near, 0.5 * (near + far), far])[:, None] / px[None, :]
     both = _sample(cover, np.concatenate([e - dist, e + dist]), cols)
-    c_fluid, c_array = both[:3].mean(axis=0), both[3:].mean(axis=0)
+    c_fluid, c_array = (both[0] + both[1] + both[2]) / 3.0, (both[3] + both[4] + both[5]) / 3.0
     return c_fluid, c_array, valid & (e - dist[2] >= wall), valid & (e + dist[2] <= m - 1)
 
 
