@@ -146,7 +146,7 @@ def contact_angles(
     else:
         i_last = int(out[0]) - 1
         g0, g1 = gap_mm[i_last], gap_mm[i_last + 1]
-        frac = float(np.clip((contact_tol_mm - g0) / (g1 - g0), 0.0, 1.0)) if g1 != g0 else 0.0
+        frac = min(max(float((contact_tol_mm - g0) / (g1 - g0)), 0.0), 1.0) if g1 != g0 else 0.0
     j = min(i_last + 1, len(theta) - 1)
     bot = centreline_mm[i_last] + frac * (centreline_mm[j] - centreline_mm[i_last])
     theta_bot = float(theta[i_last] + frac * (theta[j] - theta[i_last]))
@@ -500,7 +500,7 @@ class MeasurePlan:
         -------
         ndarray, shape (n, 2)
         """
-        station = np.clip(np.atleast_1d(np.asarray(station, dtype=float)), 0, len(self.p_mm) - 1)
+        station = np.minimum(np.maximum(np.atleast_1d(np.asarray(station, dtype=float)), 0), len(self.p_mm) - 1)
         i0 = np.minimum(station.astype(int), len(self.p_mm) - 2)
         f = (station - i0)[:, None]
         point = self.point_mm[i0] * (1 - f) + self.point_mm[i0 + 1] * f
@@ -1006,7 +1006,7 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     """
     h = int(size) // 2
     idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
-    np.clip(idx, 0, len(x) - 1, out=idx)
+    np.minimum(np.maximum(idx, 0, out=idx), len(x) - 1, out=idx)  # np.clip costs more per call
     return np.partition(x[idx], h, axis=1)[:, h]
 
 
@@ -1057,7 +1057,7 @@ def _extrapolate(stations: np.ndarray, values: np.ndarray, at: float, span: floa
     r, v = stations[sel].astype(float), values[sel]
     if len(r) < 3 or r[-1] - r[0] < span / 3:
         return _quantile(v, 0.5)
-    rm, vm = r.mean(), v.mean()
+    rm, vm = r.sum() / len(r), v.sum() / len(v)  # = .mean(), with less overhead
     return float(vm + np.dot(r - rm, v - vm) / np.dot(r - rm, r - rm) * (at - rm))
 
 
@@ -1104,7 +1104,7 @@ def _sample_offsets(block: np.ndarray, j: float, around: np.ndarray) -> np.ndarr
     ndarray, shape (k,)
     """
     m = block.shape[0]
-    pos = np.clip(j + around, 0, m - 1)
+    pos = np.minimum(np.maximum(j + around, 0), m - 1)
     j0 = np.minimum(pos.astype(int), m - 2)
     f = (pos - j0)[:, None]
     return (block[j0] * (1 - f) + block[j0 + 1] * f).mean(axis=0)
