@@ -146,7 +146,7 @@ def contact_angles(
     else:
         i_last = int(out[0]) - 1
         g0, g1 = gap_mm[i_last], gap_mm[i_last + 1]
-        frac = float(np.clip((contact_tol_mm - g0) / (g1 - g0), 0.0, 1.0)) if g1 != g0 else 0.0
+        frac = min(max(float((contact_tol_mm - g0) / (g1 - g0)), 0.0), 1.0) if g1 != g0 else 0.0
     j = min(i_last + 1, len(theta) - 1)
     bot = centreline_mm[i_last] + frac * (centreline_mm[j] - centreline_mm[i_last])
     theta_bot = float(theta[i_last] + frac * (theta[j] - theta[i_last]))
@@ -500,7 +500,7 @@ class MeasurePlan:
         -------
         ndarray, shape (n, 2)
         """
-        station = np.clip(np.atleast_1d(np.asarray(station, dtype=float)), 0, len(self.p_mm) - 1)
+        station = np.minimum(np.maximum(np.atleast_1d(np.asarray(station, dtype=float)), 0), len(self.p_mm) - 1)
         i0 = np.minimum(station.astype(int), len(self.p_mm) - 2)
         f = (station - i0)[:, None]
         point = self.point_mm[i0] * (1 - f) + self.point_mm[i0 + 1] * f
@@ -815,13 +815,11 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[
     below = cover < level
     lo_idx = ((below & (j < s)) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1  # -1: none
     hi_idx = m - ((below & (j > s)) * (np.int16(m) - j)).max(axis=0).astype(np.intp)  # m: none
-    low = np.full(n, np.nan)
-    ok = lo_idx >= 0
-    low[ok] = _crossing(cover, lo_idx[ok], cols[ok], level)
-    high = np.full(n, np.nan)
-    ok = hi_idx < m
-    high[ok] = _crossing(cover, hi_idx[ok] - 1, cols[ok], level)
-    return low, high
+    both = np.full(2 * n, np.nan)  # low, then high
+    j_both = np.concatenate([lo_idx, hi_idx - 1])
+    ok = np.concatenate([lo_idx >= 0, hi_idx < m])
+    both[ok] = _crossing(cover, j_both[ok], np.concatenate([cols, cols])[ok], level)
+    return both[:n], both[n:]
 
 
 def _window_line(sums: np.ndarray, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -880,7 +878,7 @@ def _plateaus(
     near, far = plateau_px
     dist = np.array([near, 0.5 * (near + far), far])[:, None] / px[None, :]
     both = _sample(cover, np.concatenate([e - dist, e + dist]), cols)
-    c_fluid, c_array = both[:3].mean(axis=0), both[3:].mean(axis=0)
+    c_fluid, c_array = (both[0] + both[1] + both[2]) / 3.0, (both[3] + both[4] + both[5]) / 3.0
     return c_fluid, c_array, valid & (e - dist[2] >= wall), valid & (e + dist[2] <= m - 1)
 
 
@@ -1008,7 +1006,7 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     """
     h = int(size) // 2
     idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
-    np.clip(idx, 0, len(x) - 1, out=idx)
+    np.minimum(np.maximum(idx, 0, out=idx), len(x) - 1, out=idx)  # np.clip costs more per call
     return np.partition(x[idx], h, axis=1)[:, h]
 
 
@@ -1059,7 +1057,7 @@ def _extrapolate(stations: np.ndarray, values: np.ndarray, at: float, span: floa
     r, v = stations[sel].astype(float), values[sel]
     if len(r) < 3 or r[-1] - r[0] < span / 3:
         return _quantile(v, 0.5)
-    rm, vm = r.mean(), v.mean()
+    rm, vm = r.sum() / len(r), v.sum() / len(v)  # = .mean(), with less overhead
     return float(vm + np.dot(r - rm, v - vm) / np.dot(r - rm, r - rm) * (at - rm))
 
 
@@ -1106,7 +1104,7 @@ def _sample_offsets(block: np.ndarray, j: float, around: np.ndarray) -> np.ndarr
     ndarray, shape (k,)
     """
     m = block.shape[0]
-    pos = np.clip(j + around, 0, m - 1)
+    pos = np.minimum(np.maximum(j + around, 0), m - 1)
     j0 = np.minimum(pos.astype(int), m - 2)
     f = (pos - j0)[:, None]
     return (block[j0] * (1 - f) + block[j0 + 1] * f).mean(axis=0)
