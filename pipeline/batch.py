@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
-from vision.errors import InputError, is_input_error
+from vision.errors import InputError, is_input_error, one_line
 from vision.frames import Frame, FrameSource, open_frames, to_gray
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
 
@@ -212,14 +212,6 @@ class MeasuredFrame:
 # --------------------------------------------------------------------------- one video
 
 
-def _one_line(exc: BaseException) -> str:
-    """A one-line description of an exception (``InputError`` keeps its own text)."""
-    text = " ".join(str(exc).split())
-    if is_input_error(exc):
-        return text or type(exc).__name__
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 def _frame_row(trial: str, frame: Frame, result: dict, epoch: int) -> dict:
     """The angles-table row of one frame from ``FrameMeasurement.to_row()`` output."""
     ok = bool(result.get("ok", False))
@@ -317,9 +309,9 @@ def measure_frames(
     def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float) -> MeasuredFrame:
         """The row of one measurement ``m`` (an exception when it raised), ``seconds`` spent."""
         if isinstance(m, Exception):  # a failed frame keeps its row
-            result = {"ok": False, "reason": f"measurement raised {_one_line(m)}"}
+            result = {"ok": False, "reason": f"measurement raised {one_line(m)}"}
             if log.n_exceptions == 0:
-                log.warnings.append(f"frame {frame.index}: measurement raised {_one_line(m)}")
+                log.warnings.append(f"frame {frame.index}: measurement raised {one_line(m)}")
             log.n_exceptions += 1
             m = None
         else:
@@ -376,7 +368,7 @@ def measure_frames(
                     raise InputError(source.path, f"registration failed: {problem}") from exc
                 raise
             log.warnings.append(
-                f"re-registration at frame {pending[0][0].index} failed ({_one_line(exc)}); kept the previous one"
+                f"re-registration at frame {pending[0][0].index} failed ({one_line(exc)}); kept the previous one"
             )
             new = registration
         else:
@@ -601,7 +593,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
                         continue
                     first = frame.index
                 m = _try_measure(angles_mod, gray, plan, cfg)
-                result = ({"ok": False, "reason": f"measurement raised {_one_line(m)}"} if isinstance(m, Exception)
+                result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"} if isinstance(m, Exception)
                           else m.to_row())
                 rows[at[frame.index]] = _frame_row(trial, frame, result, int(regs[j]["epoch"]))
         finally:
@@ -791,7 +783,7 @@ def _run_one(item: VideoItem, trial: str, out_dir: str, cfg: ExtractConfig, fps:
         return process_video(item.path, out_dir, cfg, fps=item.fps if item.fps is not None else fps,
                              trial=trial, overwrite=overwrite, progress=progress)
     except Exception as exc:
-        return _summary(trial, Path(item.path), "failed", error=_one_line(exc),
+        return _summary(trial, Path(item.path), "failed", error=one_line(exc),
                         error_kind="input" if is_input_error(exc) else "error",
                         seconds=round(time.perf_counter() - t0, 3))
 
@@ -947,7 +939,7 @@ def extract_batch(
                         results[i] = {**fut.result(), "path": str(Path(videos[i].path))}
                     except Exception as exc:  # the worker itself died (crash, pickling, ...)
                         results[i] = _summary(names[i], Path(videos[i].path), "failed",
-                                              error=_one_line(exc), error_kind="error")
+                                              error=one_line(exc), error_kind="error")
                     bar.update(1)
             except KeyboardInterrupt:
                 if own:  # skip queued videos; running ones stop (Ctrl-C reaches them) or finish whole
@@ -1018,7 +1010,7 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
         with open(mpath, newline="", encoding="utf-8-sig") as fh:
             lines = [(i, line) for i, line in enumerate(fh, start=1) if line.strip() and not line.lstrip().startswith("#")]
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(mpath, f"cannot read manifest ({_one_line(exc)})") from None
+        raise InputError(mpath, f"cannot read manifest ({one_line(exc)})") from None
     if not lines:
         raise InputError(mpath, "empty manifest (no header row)")
     rows = list(csv.reader(line for _, line in lines))

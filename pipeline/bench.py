@@ -42,6 +42,8 @@ from typing import Any, Callable
 
 from threadpoolctl import threadpool_limits
 
+from vision.errors import one_line
+
 __all__ = ["BenchConfig", "render_bench_video", "loop_video", "run_bench", "format_bench", "SECTIONS"]
 
 #: Optional sections of the bench (the decode/extraction comparison always runs).
@@ -180,11 +182,6 @@ def _peak_rss_mib() -> float:
         pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / 1024.0 / (1024.0 if sys.platform == "darwin" else 1.0)  # bytes on macOS, KiB elsewhere
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 # --------------------------------------------------------------------------- 1-2: decode vs extraction
@@ -444,7 +441,7 @@ def run_bench(
                 try:
                     result[name] = run()
                 except Exception as exc:  # a failed section is reported; the others still run
-                    result["errors"][name] = _one_line(exc)
+                    result["errors"][name] = one_line(exc)
     finally:
         cv2.setNumThreads(threads)
         blas.restore_original_limits()

@@ -1696,7 +1696,6 @@ def _identifiability(ds: Prepared, fit: CandidateFit, folds: list[CandidateFit],
         x2[j] += h
         cols.append((model(x2)[0] - base) / h)
         names.append(nm)
-    kg = d0.gained.shape[1]
     for j, nm in enumerate(("p_tip(0)", "p_tip(hi)", "p_bot(0)", "p_bot(hi)")):
         cols.append(d0.gained[:, j] * g)
         names.append(nm)

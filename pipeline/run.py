@@ -33,7 +33,7 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from vision.errors import InputError, is_input_error
+from vision.errors import InputError, is_input_error, one_line
 
 __all__ = ["RunConfig", "RunResult", "StageRecord", "run_pipeline", "is_fresh", "RUN_JSON", "TRIALS_CSV"]
 
@@ -193,10 +193,6 @@ def _settings(*parts: Any) -> str:
     from pipeline.io import to_jsonable
 
     return repr([to_jsonable(dataclasses.asdict(p) if dataclasses.is_dataclass(p) else p) for p in parts])
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())
 
 
 def _previous(out: Path) -> dict[str, dict]:
@@ -403,9 +399,9 @@ def _run_stage(name: str, rec: StageRecord, fn: Callable[[], Any], errors: list[
     except Exception as exc:  # one stage failing never loses the others' results
         _remove(stale)
         rec.status = "failed"
-        rec.message = _one_line(exc) if is_input_error(exc) else f"{type(exc).__name__}: {_one_line(exc)}"
+        rec.message = one_line(exc)
         if is_input_error(exc):
-            errors.append(_one_line(exc))
+            errors.append(one_line(exc))
             return True
         errors.append(f"{name}: {rec.message}")
         return False

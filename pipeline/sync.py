@@ -74,7 +74,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.forcelog import ForceLogConfig, parse_numeric, read_force_log, read_table_lines
-from vision.errors import InputError, is_input_error
+from vision.errors import InputError, is_input_error, one_line
 
 __all__ = [
     "SYNC_COLUMNS",
@@ -870,10 +870,6 @@ def _one_trial(row: pd.Series, t0_given: bool, angles_dir: Path, mpath: Path, cf
     return table, info
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())
-
-
 def sync_manifest(
     manifest: str | os.PathLike,
     *,
@@ -917,7 +913,7 @@ def sync_manifest(
             part, info = _one_trial(row, bool(t0_cells.get(line)), adir, mpath, cfg)
         except Exception as exc:  # one bad trial never stops the others
             kind = "input" if is_input_error(exc) else "error"
-            text = _one_line(exc) if kind == "input" else f"{mpath}:{line}: {type(exc).__name__}: {_one_line(exc)}"
+            text = one_line(exc) if kind == "input" else f"{mpath}:{line}: {one_line(exc)}"
             infos.append(TrialSync(trial=str(row["trial"]), line=line, status="failed", error=text, error_kind=kind))
             continue
         parts.append(part)

@@ -65,7 +65,7 @@ def configure_sync(p: argparse.ArgumentParser) -> None:
 
 def run_sync(args: argparse.Namespace) -> int:
     """Run ``tympani sync``; 0 all trials synced, 2 some failed on bad input, 1 on a bug."""
-    from pipeline.sync import SyncConfig, report_path, sync_manifest, write_sync
+    from pipeline.sync import SyncConfig, sync_manifest, write_sync
     from vision.errors import InputError
 
     if args.max_gap_frames < 1:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["InputError", "is_input_error"]
+__all__ = ["InputError", "is_input_error", "one_line"]
 
 
 class InputError(Exception):
@@ -47,3 +47,12 @@ def is_input_error(exc: BaseException) -> bool:
     define their own error type, such as a registration failure, without subclassing).
     """
     return isinstance(exc, InputError) or bool(getattr(exc, "input_error", False))
+
+
+def one_line(exc: BaseException) -> str:
+    """A one-line description of ``exc``: an input error's own text (it names the file), any other
+    exception's type and text."""
+    text = " ".join(str(exc).split())
+    if is_input_error(exc):
+        return text or type(exc).__name__
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
