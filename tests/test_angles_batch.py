@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from vision import angles as angles_mod
 from vision.angles import FrameMeasurement, measure_frame, measure_frames_batch, prepare_measurement
 from vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
 
@@ -86,6 +87,34 @@ def test_batch_equals_per_frame(videos: list[tuple[object, list[np.ndarray]]]) -
             _assert_same(a, b)
             reasons.add(a.reason)
     assert "" in reasons and "array not in channel" in reasons and len(reasons) >= 2
+
+
+def test_batched_stages_equal_per_frame_stages(videos: list[tuple[object, list[np.ndarray]]]) -> None:
+    """Stages 2 and 3 run together (not the per-frame fallback of measure_frames_batch) and
+    give _edges' and _centre_line's values frame by frame: padded and end-to-end stations
+    change no frame's filters at its borders."""
+    lines = 0
+    for plan, frames in videos:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            surveys = angles_mod._survey_batch(frames, plan)
+            keep = [k for k, sv in enumerate(surveys) if isinstance(sv, angles_mod._Survey)]
+            edges = angles_mod._edges_batch([frames[k] for k in keep], plan, [surveys[k] for k in keep])
+            centres = angles_mod._centre_line_batch(plan, edges)
+            for k, e_b, c_b in zip(keep, edges, centres):
+                e_a = angles_mod._edges(frames[k], plan, surveys[k])
+                c_a = angles_mod._centre_line(plan, e_a)
+                assert (e_a.lo, e_a.n, e_a.level) == (e_b.lo, e_b.n, e_b.level)
+                for name in ("v_in", "v_out", "ok_in", "ok_out"):
+                    np.testing.assert_allclose(getattr(e_b, name), getattr(e_a, name), rtol=0, atol=1e-9, err_msg=name)
+                assert (c_a is None) == (c_b is None)
+                if c_a is not None:
+                    lines += 1
+                    assert abs(c_a.tip_f - c_b.tip_f) <= 1e-9
+                    for name in ("tip_mm", "line", "gap", "radius", "measured"):
+                        np.testing.assert_allclose(np.asarray(getattr(c_b, name), float),
+                                                   np.asarray(getattr(c_a, name), float), rtol=0, atol=1e-9,
+                                                   err_msg=name)
+    assert lines >= 10
 
 
 def test_batch_of_a_stack_and_of_one(videos: list[tuple[object, list[np.ndarray]]]) -> None:

@@ -1429,8 +1429,29 @@ class _Edges:
     level: float
 
 
-def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
-    """The array's inner and outer edge at each station of the fine strip."""
+@dataclass(frozen=True)
+class _Strip:
+    """Stage 2's inputs: the fine strip from station ``lo`` (``fine``, grey levels), the
+    fluid level and the contrast per station (grey levels), the coverage ``cover`` (0 fluid,
+    1 array), the darkest offset ``seed``, the ``darkness`` at it, the number ``n`` of array
+    stations, and per array station the channel's half-width ``half`` (mm), px per offset
+    index ``px`` and the first offset clear of the inner wall ``wall``."""
+
+    lo: int
+    n: int
+    fine: np.ndarray
+    fluid: np.ndarray
+    contrast: np.ndarray
+    cover: np.ndarray
+    seed: np.ndarray
+    darkness: np.ndarray
+    half: np.ndarray
+    px: np.ndarray
+    wall: np.ndarray
+
+
+def _fine_strip(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Strip:
+    """The fine strip of the stations that hold the array, and its coverage (stage 2)."""
     cfg, step, ppm = plan.cfg, plan.step_mm, float(plan.pose.px_per_mm)
     sa, n_all = max(1, int(cfg.coarse_stride)), len(plan.p_mm)
     span = max(4, int(np.ceil(0.4 / step)))
@@ -1449,15 +1470,45 @@ def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
     half = plan.half_mm[lo : lo + n]
     px = du * half * ppm  # px per offset index at each station
     wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
-    low, high = _half_crossings(cover[:, :n], seed[:n], cfg.edge_level)
-    body = _erode(darkness[:n] >= cfg.body_level, cfg.border_px)  # not the stations at a band's border
-    # the levels of the fluid and of the array beside the inner edge: the global estimates are
-    # off where the lighting is uneven, the array fills the entry, or noise biases the fluid
-    c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
+    return _Strip(lo, n, fine, fluid, contrast, cover, seed, darkness, half, px, wall)
+
+
+def _edge_levels(
+    c_fluid: np.ndarray, c_array: np.ndarray, fluid_ok: np.ndarray, array_ok: np.ndarray
+) -> tuple[float, float]:
+    """The frame's fluid and array coverage beside the inner edge (medians), or 0 and 1
+    where too few stations or an implausible difference (< 0.3) leave the global levels."""
     c_f = _quantile(c_fluid[fluid_ok], 0.5) if fluid_ok.sum() >= 10 else 0.0
     c_a = _quantile(c_array[array_ok], 0.5) if array_ok.sum() >= 10 else 1.0
     if c_a - c_f < 0.3:  # implausible: keep the global levels
         c_f, c_a = 0.0, 1.0
+    return c_f, c_a
+
+
+def _edges_from(plan: MeasurePlan, st: _Strip, low: np.ndarray, high: np.ndarray, c_f: float,
+                c_a: float) -> _Edges:
+    """Stage 2's result from the relevelled inner edge ``low`` and the outer edge ``high``
+    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage)."""
+    cfg, n, half = plan.cfg, st.n, st.half
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    body = _erode((st.darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
+    v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
+    return _Edges(st.lo, n, st.fine, st.fluid, st.contrast, st.seed, v_in, v_out, body & (v_in >= -half),
+                  body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
+
+
+def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
+    """The array's inner and outer edge at each station of the fine strip."""
+    cfg, step = plan.cfg, plan.step_mm
+    st = _fine_strip(img, plan, sv)
+    cover, n = st.cover, st.n
+    low, high = _half_crossings(cover[:, :n], st.seed[:n], cfg.edge_level)
+    body = _erode(st.darkness[:n] >= cfg.body_level, cfg.border_px)  # not the stations at a band's border
+    # the levels of the fluid and of the array beside the inner edge: the global estimates are
+    # off where the lighting is uneven, the array fills the entry, or noise biases the fluid
+    c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), st.px, st.wall,
+                                                     cfg.plateau_px)
+    c_f, c_a = _edge_levels(c_fluid, c_array, fluid_ok, array_ok)
     level = np.full(n, 0.5 * (c_f + c_a))
     window = _odd(2.0 * cfg.gap_smooth_mm / step)
     if fluid_ok.sum() >= 3:  # where the fluid shows clear of the wall, the local levels
@@ -1465,10 +1516,7 @@ def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
         near = _near(fluid_ok, window)
         level = np.where(near, 0.5 * (lf + la), level)
     low = _relevel(cover, low, np.isfinite(low), level)
-    body = _erode((darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
-    v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
-    return _Edges(lo, n, fine, fluid, contrast, seed, v_in, v_out, body & (v_in >= -half),
-                  body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
+    return _edges_from(plan, st, low, high, c_f, c_a)
 
 
 @dataclass(frozen=True)
@@ -1535,6 +1583,184 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
     return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured)
 
 
+# --------------------------------------------------------------------------- stages 2–3 on a batch
+#
+# Stages 2 and 3 of B frames in lock-step (measure_frames_batch). The helpers that work station
+# by station (_half_crossings, _plateaus, _relevel, _centre_offsets) run once on the frames'
+# stations laid end to end; _smooth_valid, whose windows must stop at each frame's last
+# station, runs on frames padded to a common length with invalid (zero-weight) stations, which
+# leaves every frame's cumulative sums, and so its fits, exactly what they are alone. The
+# rest (medians, the tip) stays per frame. Results equal _edges and _centre_line frame by frame.
+
+
+def _smooth_valid_rows(
+    values: list[np.ndarray], valid: list[np.ndarray], size: int
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`_smooth_valid` of several frames at once, equal to it frame by frame.
+
+    Parameters
+    ----------
+    values : list of ndarray, shape (k, n_b)
+        Per frame, ``k`` profiles (any unit) along its ``n_b`` stations (same ``k`` for all).
+    valid : list of ndarray, shape (n_b,), bool
+        Per frame, the stations measured (at least one per frame).
+    size : int
+        Window (stations) of the local fits.
+
+    Returns
+    -------
+    fit, slope : list of ndarray, shape (k, n_b)
+        Per frame, as :func:`_smooth_valid` (unit, unit per station).
+    """
+    n_rows, k = len(values), values[0].shape[0]
+    lengths = [len(v) for v in valid]
+    n = max(lengths)
+    h = size // 2
+    x = np.arange(n, dtype=float)
+    w = np.zeros((n_rows, n))
+    y = np.zeros((n_rows, k, n))
+    for b, (vals, ok) in enumerate(zip(values, valid)):  # padding: weight 0, value 0
+        w[b, : lengths[b]] = ok
+        np.copyto(y[b, :, : lengths[b]], vals, where=ok)
+    csum = np.zeros((n_rows, 3 + 2 * k, n + 2 * h + 1))  # as in _smooth_valid, one block per frame
+    body = csum[:, :, h + 1 : n + h + 1]
+    body[:, 0] = w
+    np.multiply(body[:, 0], x, out=body[:, 1])
+    np.multiply(body[:, 1], x, out=body[:, 2])
+    body[:, 3 : 3 + k] = y
+    np.multiply(body[:, 3 : 3 + k], x, out=body[:, 3 + k :])
+    np.cumsum(body, axis=2, out=body)
+    csum[:, :, n + h + 1 :] = csum[:, :, n + h : n + h + 1]
+    sums = csum[:, :, 2 * h + 1 : 2 * h + 1 + n] - csum[:, :, :n]
+    fit, slope, have = _window_line(np.moveaxis(sums, 1, 0), k, x)  # (k, B, n), (k, B, n), (B, n)
+    fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
+    fits, slopes = [], []
+    for b, m in enumerate(lengths):
+        f, hv = fit[b, :, :m], have[b, :m]
+        if not hv.all():
+            xm = x[:m]
+            for row in f:
+                row[~hv] = np.interp(xm[~hv], xm[hv], row[hv])
+        fits.append(f)
+        slopes.append(slope[b, :, :m])
+    return fits, slopes
+
+
+def _split(x: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
+    """``x`` (stations of several frames laid end to end, along the last axis) cut at ``ends``."""
+    return np.split(x, ends[:-1], axis=-1)
+
+
+def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Survey]) -> list[_Edges]:
+    """:func:`_edges` of each frame (with its survey), equal to it frame by frame."""
+    cfg, step = plan.cfg, plan.step_mm
+    strips = [_fine_strip(img, plan, sv) for img, sv in zip(imgs, surveys)]
+    ns = np.array([st.n for st in strips])
+    ends = np.cumsum(ns)
+    cover = np.concatenate([st.cover[:, : st.n] for st in strips], axis=1)
+    seed = np.concatenate([st.seed[: st.n] for st in strips])
+    low, high = _half_crossings(cover, seed, cfg.edge_level)
+    body = np.concatenate([_erode(st.darkness[: st.n] >= cfg.body_level, cfg.border_px) for st in strips])
+    px = np.concatenate([st.px for st in strips])
+    wall = np.concatenate([st.wall for st in strips])
+    planes = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
+    c_fluid, c_array, fluid_ok, array_ok = (_split(a, ends) for a in planes)
+    levels = [_edge_levels(*a) for a in zip(c_fluid, c_array, fluid_ok, array_ok)]
+    level = [np.full(n, 0.5 * (c_f + c_a)) for n, (c_f, c_a) in zip(ns, levels)]
+    window = _odd(2.0 * cfg.gap_smooth_mm / step)
+    local = [b for b in range(len(strips)) if fluid_ok[b].sum() >= 3]
+    if local:  # where the fluid shows clear of the wall, the local levels
+        fits, _ = _smooth_valid_rows([np.vstack([c_fluid[b], c_array[b]]) for b in local],
+                                     [fluid_ok[b] for b in local], window)
+        for b, (lf, la) in zip(local, fits):
+            level[b] = np.where(_near(fluid_ok[b], window), 0.5 * (lf + la), level[b])
+    low = _relevel(cover, low, np.isfinite(low), np.concatenate(level))
+    return [_edges_from(plan, st, lw, hg, c_f, c_a)
+            for st, lw, hg, (c_f, c_a) in zip(strips, _split(low, ends), _split(high, ends), levels)]
+
+
+def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
+    """:func:`_centre_line` of each frame's edges, equal to it frame by frame."""
+    cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    k_smooth = _odd(cfg.gap_smooth_mm / step)
+    tol = cfg.outlier_px / ppm
+    span = max(4, int(np.ceil(0.4 / step)))
+    out: list[_CentreLine | None] = [None] * len(edges)
+
+    def offsets(rows: list[int], s: list[np.ndarray], stretch: list[np.ndarray]) -> tuple[list, list, list]:
+        """_centre_offsets of frames ``rows``, their stations laid end to end."""
+        ends = np.cumsum([edges[b].n for b in rows])
+        cat = [np.concatenate([getattr(edges[b], name) for b in rows]) for name in ("v_in", "v_out", "ok_in", "ok_out")]
+        res = _centre_offsets(*cat, np.concatenate(s), np.concatenate(stretch), array, cfg.cap_min, tol)
+        return tuple(_split(a, ends) for a in res)
+
+    # pass 1: distance from the tip along the backbone, array parallel to the channel
+    rows = list(range(len(edges)))
+    s1 = [plan.p_mm[e.lo + e.n - 1] - plan.p_mm[e.lo : e.lo + e.n] for e in edges]
+    v_c, measured1, _ = offsets(rows, s1, [np.ones(e.n) for e in edges])
+    live, measured = [], {}
+    for b, e in enumerate(edges):
+        idx = np.flatnonzero(measured1[b])
+        if len(idx) < 3:
+            continue
+        med = np.zeros(e.n)
+        med[idx] = _running_median(v_c[b][idx], k_smooth)
+        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
+        live.append(b)
+    if not live:
+        return out
+    fits, slants = _smooth_valid_rows([v_c[b][None, :] for b in live], [measured[b] for b in live],
+                                      _odd(2.5 * cfg.gap_smooth_mm / step))
+    s2, stretch, tips = [], [], []
+    for b, fit, slant in zip(live, fits, slants):
+        e, n, ms = edges[b], edges[b].n, measured[b]
+        lo, stations = e.lo, np.arange(e.n)
+        point, normal, half = plan.point_mm[lo : lo + n], plan.normal[lo : lo + n], plan.half_mm[lo : lo + n]
+        centre = fit[0]
+        stretch.append(np.sqrt(1.0 + (slant[0] / step) ** 2))
+        # the tip: the half-level crossing along the centre line, extrapolated from the body
+        last = int(np.flatnonzero(ms)[-1])
+        if (n - 1 - last) * step <= cfg.tip_reach_mm:
+            tip_v = _extrapolate(stations[ms], v_c[b][ms], float(n - 1), 1.0 / step)
+        else:  # no body seen near the tip: the darkest offset of the last dark stations
+            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * float(half[-1])
+        tip_u = min(max(tip_v / float(half[-1]), -1.0), 1.0)
+        k0 = max(n - 1 - span, 0)
+        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (tip_u - u0) / du, np.array([-1.0, 0.0, 1.0]))
+        tip_f = k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0))
+        tip_mm = plan.to_mm(np.array([lo + tip_f]), np.array([tip_u]))[0]
+        tips.append((tip_f, tip_mm))
+        # pass 2: distance along the measured centre line, slant across the channel -> gaps
+        s2.append(_distance_from_tip(point + centre[:, None] * normal, tip_mm, stations, tip_f))
+    v_c2, measured2, radius = offsets(live, s2, stretch)
+    done, values, valid = [], [], []
+    for i, b in enumerate(live):
+        e, n = edges[b], edges[b].n
+        stations, tip_f = np.arange(n), tips[i][0]
+        ms = measured[b] & measured2[i] & (stations <= tip_f)
+        if ms.sum() < 3:
+            continue
+        # where both edges show, the array must be about as wide as it is (noise is not)
+        both = e.ok_in & e.ok_out & (stations <= tip_f) & (s2[i] >= plan.r_tip_mm)
+        if both.sum() >= 10:
+            width = 2.0 * radius[i] * stretch[i]
+            fits_w = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
+            if fits_w[both].mean() < 0.5:
+                continue
+        half = plan.half_mm[e.lo : e.lo + n]
+        done.append((i, b, ms))
+        values.append(np.vstack([v_c2[i], half - v_c2[i] - radius[i] * stretch[i]]))
+        valid.append(ms)
+    if done:
+        smooth, _ = _smooth_valid_rows(values, valid, k_smooth)
+        for (i, b, ms), (centre, gap) in zip(done, smooth):
+            e = edges[b]
+            point, normal = plan.point_mm[e.lo : e.lo + e.n], plan.normal[e.lo : e.lo + e.n]
+            out[b] = _CentreLine(tips[i][0], tips[i][1], point + centre[:, None] * normal, gap, radius[i], ms)
+    return out
+
+
 def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
     """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
     cfg, lo = plan.cfg, e.lo
@@ -1588,6 +1814,21 @@ def _after_survey(img: np.ndarray, plan: MeasurePlan, sv: _Survey | FrameMeasure
         return failed
     result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
     timings["angles"] = time.perf_counter() - t3
+    result.timings.update(timings)
+    return result
+
+
+def _staged_result(plan: MeasurePlan, sv: _Survey, e: _Edges, c: _CentreLine | None,
+                   timings: dict[str, float]) -> FrameMeasurement:
+    """Stage 4 of a frame whose stages 1–3 (``timings``, s) gave ``sv``, ``e`` and ``c``: what
+    :func:`_after_survey` returns for it."""
+    if c is None:
+        failed = _fail("array edges not found", contrast=sv.contrast)
+        failed.timings.update(timings)
+        return failed
+    t0 = time.perf_counter()
+    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
+    timings["angles"] = time.perf_counter() - t0
     result.timings.update(timings)
     return result
 
@@ -1662,10 +1903,12 @@ def measure_frames_batch(
     grays: list[np.ndarray] | np.ndarray,
     plan: MeasurePlan,
 ) -> list[FrameMeasurement]:
-    """:func:`measure_frame` of several frames of one plan, with stage 1 run on all at once.
+    """:func:`measure_frame` of several frames of one plan, stages 1–3 run on all at once.
 
     The survey (stage 1) of the frames is computed stacked along a leading axis, a few dozen
-    NumPy calls for the whole batch instead of per frame; stages 2–4 run per frame. The
+    NumPy calls for the whole batch instead of per frame; the edges and the centre line
+    (stages 2–3) run their station-wise helpers once on all frames' stations (see the notes
+    above :func:`_smooth_valid_rows`); the angles (stage 4) run per frame. The
     results equal :func:`measure_frame`'s frame by frame (the per-frame function stays the
     reference; ``tests/test_angles_batch.py`` compares them).
 
@@ -1680,13 +1923,15 @@ def measure_frames_batch(
     Returns
     -------
     list of FrameMeasurement
-        One per frame, in order. ``timings['survey']`` and ``extras['time_ms']`` of each frame
-        include an equal share (1/B) of the batch's survey.
+        One per frame, in order. ``timings['survey']``, ``timings['edges']``,
+        ``timings['centre_line']`` and ``extras['time_ms']`` of each frame hold an equal share
+        of the batch's stages 1–3.
 
     Notes
     -----
     Frames that are not valid images, or not of the plan's shape, and any batch whose joint
-    survey raises, are measured one by one with :func:`measure_frame`.
+    survey raises, are measured one by one with :func:`measure_frame`; a batch whose joint
+    stages 2–3 raise gets them frame by frame.
     """
     t0 = time.perf_counter()
     results: list[FrameMeasurement | None] = [None] * len(grays)
@@ -1710,16 +1955,39 @@ def measure_frames_batch(
             surveys = None
         t1 = time.perf_counter()
         share_s = (t1 - t0) / len(imgs)
-        for i, img, sv in zip(where, imgs, surveys if surveys is not None else [None] * len(imgs)):
-            t2 = time.perf_counter()
+        if surveys is None:
+            surveys = [None] * len(imgs)
+        todo = [k for k, sv in enumerate(surveys) if isinstance(sv, _Survey)]
+        staged: dict[int, tuple[_Edges, _CentreLine | None]] = {}
+        edges_s = centre_s = 0.0
+        if todo:
+            try:  # stages 2-3 together; on any error, frame by frame below
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    edges = _edges_batch([imgs[k] for k in todo], plan, [surveys[k] for k in todo])
+                    t2 = time.perf_counter()
+                    lines = _centre_line_batch(plan, edges)
+                    t3 = time.perf_counter()
+                staged = {k: (e, c) for k, e, c in zip(todo, edges, lines)}
+                edges_s, centre_s = (t2 - t1) / len(todo), (t3 - t2) / len(todo)
+            except (ValueError, IndexError, FloatingPointError, cv2.error):
+                staged = {}
+        for k, (i, img, sv) in enumerate(zip(where, imgs, surveys)):
+            t4 = time.perf_counter()
             if sv is None:
                 results[i] = measure_frame(img, plan)
                 continue
             try:
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    result = _after_survey(img, plan, sv, share_s)
+                    if k in staged:
+                        result = _staged_result(plan, sv, *staged[k], dict(survey=share_s, edges=edges_s,
+                                                                           centre_line=centre_s))
+                        spent_s = share_s + edges_s + centre_s
+                    else:
+                        result = _after_survey(img, plan, sv, share_s)
+                        spent_s = share_s
             except (ValueError, IndexError, FloatingPointError, cv2.error) as exc:
                 result = _fail(f"measurement failed: {type(exc).__name__}: {exc}")
-            result.extras["time_ms"] = 1e3 * (share_s + time.perf_counter() - t2)
+                spent_s = share_s
+            result.extras["time_ms"] = 1e3 * (spent_s + time.perf_counter() - t4)
             results[i] = result
     return [r for r in results if r is not None]
