@@ -1921,7 +1921,8 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
     -------
     dict
         ``verdict``, ``effect``, ``ranking`` (list of {effect, delta_bic, heldout_rmse_g, params, ...}),
-        ``gap`` ({rmse_base_g, rmse_with_effect_g, shrink_pct, by_speed, where, ...}), ``heldout``
+        ``gap`` ({rmse_base_g, rmse_with_effect_g, shrink_pct, by_speed, where, ...}), ``by_speed`` and
+        ``where`` (the same, also at the top level), ``heldout``
         (scheme, folds, extrapolation, bootstrap), then ``reason``, ``tied``, ``leader``,
         ``explains``, ``control``, ``lack_of_fit``, ``forms`` (each candidate's functional form),
         ``identifiability``, ``peak_drop``,
@@ -1954,6 +1955,9 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
         "effect": diag.effect,
         "ranking": ranking,
         "gap": gap,
+        # SPEC §6 lists by_speed and where beside gap's RMSEs: both readings find them
+        "by_speed": gap.get("by_speed"),
+        "where": diag.where,
         "heldout": dict(
             scheme="leave-one-speed-out: each speed's trials are predicted by fits to the other speeds (their trial "
                    "gains, mean 1, from their own rows); the fold holding out the fastest speed is the extrapolation",
