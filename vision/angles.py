@@ -1679,6 +1679,45 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
             for st, lw, hg, (c_f, c_a) in zip(strips, _split(low, ends), _split(high, ends), levels)]
 
 
+def _distance_from_tip_rows(lines: list[np.ndarray], tips_mm: np.ndarray, tips: list[float]) -> list[np.ndarray]:
+    """:func:`_distance_from_tip` of several centre lines at once, equal to it line by line.
+
+    The lines are right-aligned in one array, padded in front with their first point (zero
+    segments), so that each row's reversed running sum adds the line's own segments in the
+    same order, then zeros.
+
+    Parameters
+    ----------
+    lines : list of ndarray, shape (n_b, 2)
+        Per frame, centre-line points (mm), basal first (at least one point each).
+    tips_mm : ndarray, shape (B, 2)
+        Per frame, the tip (mm).
+    tips : list of float
+        Per frame, the tip's fractional station; stations beyond it get 0.
+
+    Returns
+    -------
+    list of ndarray, shape (n_b,)
+    """
+    lengths = [len(line) for line in lines]
+    n = max(lengths)
+    padded = np.empty((len(lines), n, 2))
+    for b, (line, m) in enumerate(zip(lines, lengths)):
+        padded[b, : n - m] = line[0]
+        padded[b, n - m :] = line
+    d = np.diff(padded, axis=1)
+    seg = np.hypot(d[:, :, 0], d[:, :, 1])
+    s = np.zeros((len(lines), n))
+    s[:, :-1] = np.cumsum(seg[:, ::-1], axis=1)[:, ::-1]
+    last = padded[:, -1] - tips_mm
+    s += np.hypot(last[:, 0], last[:, 1])[:, None]
+    out = []
+    for b, m in enumerate(lengths):
+        row = s[b, n - m :]
+        out.append(np.where(np.arange(m) > tips[b], 0.0, row))
+    return out
+
+
 def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
     """:func:`_centre_line` of each frame's edges, equal to it frame by frame."""
     cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
@@ -1712,27 +1751,30 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
         return out
     fits, slants = _smooth_valid_rows([v_c[b][None, :] for b in live], [measured[b] for b in live],
                                       _odd(2.5 * cfg.gap_smooth_mm / step))
-    s2, stretch, tips = [], [], []
-    for b, fit, slant in zip(live, fits, slants):
+    stretch, tip_fs, tip_u = [], [], []
+    for b, slant in zip(live, slants):
         e, n, ms = edges[b], edges[b].n, measured[b]
-        lo, stations = e.lo, np.arange(e.n)
-        point, normal, half = plan.point_mm[lo : lo + n], plan.normal[lo : lo + n], plan.half_mm[lo : lo + n]
-        centre = fit[0]
+        stations, half_tip = np.arange(n), float(plan.half_mm[e.lo + n - 1])
         stretch.append(np.sqrt(1.0 + (slant[0] / step) ** 2))
         # the tip: the half-level crossing along the centre line, extrapolated from the body
         last = int(np.flatnonzero(ms)[-1])
         if (n - 1 - last) * step <= cfg.tip_reach_mm:
             tip_v = _extrapolate(stations[ms], v_c[b][ms], float(n - 1), 1.0 / step)
         else:  # no body seen near the tip: the darkest offset of the last dark stations
-            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * float(half[-1])
-        tip_u = min(max(tip_v / float(half[-1]), -1.0), 1.0)
+            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * half_tip
+        u = min(max(tip_v / half_tip, -1.0), 1.0)
         k0 = max(n - 1 - span, 0)
-        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (tip_u - u0) / du, np.array([-1.0, 0.0, 1.0]))
-        tip_f = k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0))
-        tip_mm = plan.to_mm(np.array([lo + tip_f]), np.array([tip_u]))[0]
-        tips.append((tip_f, tip_mm))
-        # pass 2: distance along the measured centre line, slant across the channel -> gaps
-        s2.append(_distance_from_tip(point + centre[:, None] * normal, tip_mm, stations, tip_f))
+        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (u - u0) / du, np.array([-1.0, 0.0, 1.0]))
+        tip_fs.append(k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0)))
+        tip_u.append(u)
+    tip_mm = plan.to_mm(np.array([edges[b].lo for b in live]) + np.array(tip_fs), np.array(tip_u))  # row-wise
+    tips = list(zip(tip_fs, tip_mm))
+    # pass 2: distance along the measured centre line, slant across the channel -> gaps
+    lines = []
+    for b, fit in zip(live, fits):
+        e = edges[b]
+        lines.append(plan.point_mm[e.lo : e.lo + e.n] + fit[0][:, None] * plan.normal[e.lo : e.lo + e.n])
+    s2 = _distance_from_tip_rows(lines, tip_mm, tip_fs)
     v_c2, measured2, radius = offsets(live, s2, stretch)
     done, values, valid = [], [], []
     for i, b in enumerate(live):
@@ -1761,21 +1803,30 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     return out
 
 
-def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
-    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
-    cfg, lo = plan.cfg, e.lo
+def _result_points(plan: MeasurePlan, e: _Edges, c: _CentreLine) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stage 4's stations ``keep`` (every ~``angle_step_mm``, tip first), its centre line
+    (tip, then the kept stations' points) and the points whose SPEC angles it needs: the tip
+    alone when it is in the entry channel, else the centre line."""
     stations = np.arange(e.n)
-    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(cfg.angle_step_mm / plan.step_mm)))]
+    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(plan.cfg.angle_step_mm / plan.step_mm)))]
     centreline = np.vstack([c.tip_mm[None, :], c.line[keep]])
+    return keep, centreline, centreline[:1] if e.lo + c.tip_f < plan.i_start else centreline
+
+
+def _result_from(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float], keep: np.ndarray,
+                 centreline: np.ndarray, theta: np.ndarray) -> FrameMeasurement:
+    """Stage 4's result from :func:`_result_points` (``keep``, ``centreline``) and the SPEC
+    angles of its points."""
+    cfg, lo = plan.cfg, e.lo
     gaps = np.concatenate([c.gap[keep[:1]] if len(keep) else c.gap[-1:], c.gap[keep]])
     radii = np.concatenate([[plan.r_tip_mm], c.radius[keep]])
     if lo + c.tip_f < plan.i_start:  # tip in the entry channel: theta = phi (SPEC §2), no contact
-        theta_tip = float(_spiral_angle(c.tip_mm[None, :], plan.angles)[0])
+        theta_tip = float(theta[0])
         angles = ContactAngles(theta_tip, theta_tip, 0.0, c.tip_mm, c.tip_mm)
         extras["depth_mm"] = -float(plan.p_mm[plan.i_start] - plan.p_mm[lo] - c.tip_f * plan.step_mm)
     else:
         angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps,
-                                theta=_spiral_angle(centreline, plan.angles))
+                                theta=theta)
         d = centreline[1:] - centreline[:-1]
         extras["depth_mm"] = float(np.hypot(d[:, 0], d[:, 1]).sum())
     side = radii[1:, None] * plan.normal[lo + keep]
@@ -1784,6 +1835,23 @@ def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, floa
         True, "", angles.theta_tip, angles.theta_bot, angles.theta_con, angles.tip_mm, angles.bot_mm,
         centreline, outline, gaps, extras,
     )
+
+
+def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
+    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
+    keep, centreline, points = _result_points(plan, e, c)
+    return _result_from(plan, e, c, extras, keep, centreline, _spiral_angle(points, plan.angles))
+
+
+def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, dict[str, float]]]
+                   ) -> list[FrameMeasurement]:
+    """:func:`_result` of several frames, the SPEC angles of all their points in one call
+    (:func:`_spiral_angle` works point by point, so each frame's equal its own)."""
+    prepared = [_result_points(plan, e, c) for e, c, _ in staged]
+    points = [p for _, _, p in prepared]
+    theta = np.split(_spiral_angle(np.concatenate(points), plan.angles), np.cumsum([len(p) for p in points])[:-1])
+    return [_result_from(plan, e, c, extras, keep, line, t)
+            for (e, c, extras), (keep, line, _), t in zip(staged, prepared, theta)]
 
 
 def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
@@ -1908,7 +1976,8 @@ def measure_frames_batch(
     The survey (stage 1) of the frames is computed stacked along a leading axis, a few dozen
     NumPy calls for the whole batch instead of per frame; the edges and the centre line
     (stages 2–3) run their station-wise helpers once on all frames' stations (see the notes
-    above :func:`_smooth_valid_rows`); the angles (stage 4) run per frame. The
+    above :func:`_smooth_valid_rows`); the angles (stage 4) take the SPEC angles of all
+    frames' points in one call and the rest per frame. The
     results equal :func:`measure_frame`'s frame by frame (the per-frame function stays the
     reference; ``tests/test_angles_batch.py`` compares them).
 
@@ -1924,8 +1993,8 @@ def measure_frames_batch(
     -------
     list of FrameMeasurement
         One per frame, in order. ``timings['survey']``, ``timings['edges']``,
-        ``timings['centre_line']`` and ``extras['time_ms']`` of each frame hold an equal share
-        of the batch's stages 1–3.
+        ``timings['centre_line']``, ``timings['angles']`` and ``extras['time_ms']`` of each
+        frame hold an equal share of the batch's stages (stage 4's among the frames measured).
 
     Notes
     -----
@@ -1971,7 +2040,27 @@ def measure_frames_batch(
                 edges_s, centre_s = (t2 - t1) / len(todo), (t3 - t2) / len(todo)
             except (ValueError, IndexError, FloatingPointError, cv2.error):
                 staged = {}
+        done: dict[int, FrameMeasurement] = {}
+        measured = [k for k, (_, c) in staged.items() if c is not None]
+        if measured:
+            t4 = time.perf_counter()
+            try:  # stage 4 together; on any error, frame by frame below
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    finals = _results_batch(plan, [
+                        (*staged[k], dict(contrast=surveys[k].contrast,
+                                          edge_fraction=float(staged[k][1].measured.sum()) / len(staged[k][1].measured)))
+                        for k in measured])
+                angles_s = (time.perf_counter() - t4) / len(measured)
+                for k, result in zip(measured, finals):
+                    result.timings.update(survey=share_s, edges=edges_s, centre_line=centre_s, angles=angles_s)
+                    result.extras["time_ms"] = 1e3 * (share_s + edges_s + centre_s + angles_s)
+                    done[k] = result
+            except (ValueError, IndexError, FloatingPointError, cv2.error):
+                done = {}
         for k, (i, img, sv) in enumerate(zip(where, imgs, surveys)):
+            if k in done:
+                results[i] = done[k]
+                continue
             t4 = time.perf_counter()
             if sv is None:
                 results[i] = measure_frame(img, plan)
