@@ -739,6 +739,17 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
+def _erode_rows(masks: list[np.ndarray], reach: int) -> list[np.ndarray]:
+    """:func:`_erode` of several 1-D masks at once: each padded with False to a common length,
+    which clears its last ``reach`` stations as the clipping at its own end does."""
+    lengths = [len(m) for m in masks]
+    padded = np.zeros((len(masks), max(lengths)), dtype=bool)
+    for row, m, n in zip(padded, masks, lengths):
+        row[:n] = m
+    eroded = _erode(padded, reach)
+    return [row[:n] for row, n in zip(eroded, lengths)]
+
+
 def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
     """Last station of the dark run that starts in the probe stations, bridging short gaps.
 
@@ -1008,6 +1019,19 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
     np.minimum(np.maximum(idx, 0, out=idx), len(x) - 1, out=idx)  # np.clip costs more per call
     return np.partition(x[idx], h, axis=1)[:, h]
+
+
+def _running_median_rows(xs: list[np.ndarray], size: int) -> list[np.ndarray]:
+    """:func:`_running_median` of several sequences (each non-empty) at once: their samples
+    laid end to end, each window's indices clamped to its own sequence's ends."""
+    h = int(size) // 2
+    lengths = np.array([len(x) for x in xs])
+    ends = np.cumsum(lengths)
+    starts = ends - lengths
+    first, last = np.repeat(starts, lengths)[:, None], np.repeat(ends - 1, lengths)[:, None]
+    idx = np.arange(-h, h + 1)[None, :] + np.arange(int(ends[-1]))[:, None]
+    np.minimum(np.maximum(idx, first, out=idx), last, out=idx)
+    return _split(np.partition(np.concatenate(xs)[idx], h, axis=1)[:, h], ends)
 
 
 def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -1485,13 +1509,21 @@ def _edge_levels(
     return c_f, c_a
 
 
+def _body_mask(plan: MeasurePlan, st: _Strip, c_f: float, c_a: float) -> np.ndarray:
+    """The stations dark enough for the array's body between the frame's levels ``c_f`` and
+    ``c_a`` (coverage), before erosion."""
+    return (st.darkness[: st.n] - c_f) / (c_a - c_f) >= plan.cfg.body_level
+
+
 def _edges_from(plan: MeasurePlan, st: _Strip, low: np.ndarray, high: np.ndarray, c_f: float,
-                c_a: float) -> _Edges:
+                c_a: float, body: np.ndarray | None = None) -> _Edges:
     """Stage 2's result from the relevelled inner edge ``low`` and the outer edge ``high``
-    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage)."""
+    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage); ``body``,
+    the eroded :func:`_body_mask`, when already computed."""
     cfg, n, half = plan.cfg, st.n, st.half
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
-    body = _erode((st.darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
+    if body is None:
+        body = _erode(_body_mask(plan, st, c_f, c_a), cfg.border_px)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
     return _Edges(st.lo, n, st.fine, st.fluid, st.contrast, st.seed, v_in, v_out, body & (v_in >= -half),
                   body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
@@ -1660,7 +1692,7 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     cover = np.concatenate([st.cover[:, : st.n] for st in strips], axis=1)
     seed = np.concatenate([st.seed[: st.n] for st in strips])
     low, high = _half_crossings(cover, seed, cfg.edge_level)
-    body = np.concatenate([_erode(st.darkness[: st.n] >= cfg.body_level, cfg.border_px) for st in strips])
+    body = np.concatenate(_erode_rows([st.darkness[: st.n] >= cfg.body_level for st in strips], cfg.border_px))
     px = np.concatenate([st.px for st in strips])
     wall = np.concatenate([st.wall for st in strips])
     planes = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
@@ -1675,8 +1707,9 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
         for b, (lf, la) in zip(local, fits):
             level[b] = np.where(_near(fluid_ok[b], window), 0.5 * (lf + la), level[b])
     low = _relevel(cover, low, np.isfinite(low), np.concatenate(level))
-    return [_edges_from(plan, st, lw, hg, c_f, c_a)
-            for st, lw, hg, (c_f, c_a) in zip(strips, _split(low, ends), _split(high, ends), levels)]
+    bodies = _erode_rows([_body_mask(plan, st, c_f, c_a) for st, (c_f, c_a) in zip(strips, levels)], cfg.border_px)
+    return [_edges_from(plan, st, lw, hg, c_f, c_a, bd)
+            for st, lw, hg, (c_f, c_a), bd in zip(strips, _split(low, ends), _split(high, ends), levels, bodies)]
 
 
 def _distance_from_tip_rows(lines: list[np.ndarray], tips_mm: np.ndarray, tips: list[float]) -> list[np.ndarray]:
@@ -1738,17 +1771,14 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     rows = list(range(len(edges)))
     s1 = [plan.p_mm[e.lo + e.n - 1] - plan.p_mm[e.lo : e.lo + e.n] for e in edges]
     v_c, measured1, _ = offsets(rows, s1, [np.ones(e.n) for e in edges])
-    live, measured = [], {}
-    for b, e in enumerate(edges):
-        idx = np.flatnonzero(measured1[b])
-        if len(idx) < 3:
-            continue
-        med = np.zeros(e.n)
-        med[idx] = _running_median(v_c[b][idx], k_smooth)
-        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
-        live.append(b)
+    live = [b for b in range(len(edges)) if np.count_nonzero(measured1[b]) >= 3]
     if not live:
         return out
+    measured = {}
+    for b, m in zip(live, _running_median_rows([v_c[b][measured1[b]] for b in live], k_smooth)):
+        med = np.zeros(edges[b].n)
+        med[measured1[b]] = m
+        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
     fits, slants = _smooth_valid_rows([v_c[b][None, :] for b in live], [measured[b] for b in live],
                                       _odd(2.5 * cfg.gap_smooth_mm / step))
     stretch, tip_fs, tip_u = [], [], []
