@@ -1666,16 +1666,42 @@ def _smooth_valid_rows(
     sums = csum[:, :, 2 * h + 1 : 2 * h + 1 + n] - csum[:, :, :n]
     fit, slope, have = _window_line(np.moveaxis(sums, 1, 0), k, x)  # (k, B, n), (k, B, n), (B, n)
     fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
-    fits, slopes = [], []
-    for b, m in enumerate(lengths):
-        f, hv = fit[b, :, :m], have[b, :m]
-        if not hv.all():
-            xm = x[:m]
-            for row in f:
-                row[~hv] = np.interp(xm[~hv], xm[hv], row[hv])
-        fits.append(f)
-        slopes.append(slope[b, :, :m])
-    return fits, slopes
+    inside = x[None, :] < np.array(lengths)[:, None]
+    known, unknown = have & inside, ~have & inside
+    gaps = unknown.any(axis=1)
+    if gaps.any() and known.any(axis=1)[gaps].all():
+        _fill_rows(fit, known, unknown, x)
+    elif gaps.any():  # a frame with nothing to interpolate from: np.interp raises as per frame
+        for b, m in enumerate(lengths):
+            f, hv = fit[b, :, :m], have[b, :m]
+            if not hv.all():
+                for row in f:
+                    row[~hv] = np.interp(x[:m][~hv], x[:m][hv], row[hv])
+    return [fit[b, :, :m] for b, m in enumerate(lengths)], [slope[b, :, :m] for b, m in enumerate(lengths)]
+
+
+def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
+    """Fill ``fit[b, r, j]`` where ``unknown[b, j]`` by linear interpolation over station
+    ``j`` between frame ``b``'s ``known`` stations (the end values beyond them), in place:
+    the per-frame ``np.interp`` of :func:`_smooth_valid` for all frames in one call per row.
+
+    The frames' stations are laid on one axis ``n + 2`` apart, each flanked by a point of
+    its first and of its last known value, so no query interpolates across frames; the
+    differences of the (integer) positions are exact, so each value equals its frame's own.
+    """
+    n_frames, n = known.shape
+    pos = x[None, :] + (n + 2.0) * np.arange(n_frames)[:, None]
+    rows = np.flatnonzero(known.any(axis=1))
+    first = np.argmax(known[rows], axis=1)
+    last = n - 1 - np.argmax(known[rows, ::-1], axis=1)
+    kb, kj = np.nonzero(known)
+    xp = np.concatenate([pos[rows, 0] - 1.0, pos[kb, kj], pos[rows, 0] + n])
+    order = np.argsort(xp, kind="stable")
+    qb, qj = np.nonzero(unknown)
+    xq = pos[qb, qj]
+    for r in range(fit.shape[1]):
+        fp = np.concatenate([fit[rows, r, first], fit[kb, r, kj], fit[rows, r, last]])
+        fit[qb, r, qj] = np.interp(xq, xp[order], fp[order])
 
 
 def _split(x: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
