@@ -739,6 +739,17 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
+def _erode_rows(masks: list[np.ndarray], reach: int) -> list[np.ndarray]:
+    """:func:`_erode` of several 1-D masks at once: each padded with False to a common length,
+    which clears its last ``reach`` stations as the clipping at its own end does."""
+    lengths = [len(m) for m in masks]
+    padded = np.zeros((len(masks), max(lengths)), dtype=bool)
+    for row, m, n in zip(padded, masks, lengths):
+        row[:n] = m
+    eroded = _erode(padded, reach)
+    return [row[:n] for row, n in zip(eroded, lengths)]
+
+
 def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
     """Last station of the dark run that starts in the probe stations, bridging short gaps.
 
@@ -1008,6 +1019,19 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
     np.minimum(np.maximum(idx, 0, out=idx), len(x) - 1, out=idx)  # np.clip costs more per call
     return np.partition(x[idx], h, axis=1)[:, h]
+
+
+def _running_median_rows(xs: list[np.ndarray], size: int) -> list[np.ndarray]:
+    """:func:`_running_median` of several sequences (each non-empty) at once: their samples
+    laid end to end, each window's indices clamped to its own sequence's ends."""
+    h = int(size) // 2
+    lengths = np.array([len(x) for x in xs])
+    ends = np.cumsum(lengths)
+    starts = ends - lengths
+    first, last = np.repeat(starts, lengths)[:, None], np.repeat(ends - 1, lengths)[:, None]
+    idx = np.arange(-h, h + 1)[None, :] + np.arange(int(ends[-1]))[:, None]
+    np.minimum(np.maximum(idx, first, out=idx), last, out=idx)
+    return _split(np.partition(np.concatenate(xs)[idx], h, axis=1)[:, h], ends)
 
 
 def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -1316,9 +1340,39 @@ def _fluid_levels(
         c = np.concatenate([level[:, 1:], level[:, -1:]], axis=1)
         level = np.maximum(np.minimum(a, level), np.minimum(np.maximum(a, level), c))
     out = np.ones((n_rows, n))
-    for b in np.flatnonzero(any_in):
-        out[b] = np.maximum(np.interp(stations, centres, level[b]), 1.0)
+    rows = np.flatnonzero(any_in)
+    if len(rows):
+        out[rows] = np.maximum(_interp_rows(stations, centres, level[rows]), 1.0)
     return out
+
+
+def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp(x, xp, fp[b])`` for each row ``b`` of ``fp``, in one call, equal to it row by row.
+
+    The rows are laid on one axis ``span`` apart (more than ``x`` and ``xp`` span, all
+    at least 0; positions integers or halves, so their differences stay exact), each
+    flanked by a point of its first and of its last value, so no query interpolates across
+    rows and those beyond ``xp`` get the end values, as ``np.interp`` gives them.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        Query positions, common to all rows.
+    xp : ndarray, shape (m,)
+        Increasing sample positions, common to all rows.
+    fp : ndarray, shape (B, m)
+        Sample values per row.
+
+    Returns
+    -------
+    ndarray, shape (B, n)
+    """
+    n_rows, m = fp.shape
+    span = float(np.ceil(max(x.max(), xp.max()))) + 3.0
+    off = span * np.arange(n_rows)[:, None]
+    pos = np.concatenate([off - 1.0, xp[None, :] + off, off + (span - 2.0)], axis=1)
+    val = np.concatenate([fp[:, :1], fp, fp[:, -1:]], axis=1)
+    return np.interp(x[None, :] + off, pos.ravel(), val.ravel())
 
 
 def _row_quantiles(x: np.ndarray, keep: np.ndarray, q: float) -> np.ndarray:
@@ -1485,13 +1539,21 @@ def _edge_levels(
     return c_f, c_a
 
 
+def _body_mask(plan: MeasurePlan, st: _Strip, c_f: float, c_a: float) -> np.ndarray:
+    """The stations dark enough for the array's body between the frame's levels ``c_f`` and
+    ``c_a`` (coverage), before erosion."""
+    return (st.darkness[: st.n] - c_f) / (c_a - c_f) >= plan.cfg.body_level
+
+
 def _edges_from(plan: MeasurePlan, st: _Strip, low: np.ndarray, high: np.ndarray, c_f: float,
-                c_a: float) -> _Edges:
+                c_a: float, body: np.ndarray | None = None) -> _Edges:
     """Stage 2's result from the relevelled inner edge ``low`` and the outer edge ``high``
-    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage)."""
+    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage); ``body``,
+    the eroded :func:`_body_mask`, when already computed."""
     cfg, n, half = plan.cfg, st.n, st.half
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
-    body = _erode((st.darkness[:n] - c_f) / (c_a - c_f) >= cfg.body_level, cfg.border_px)
+    if body is None:
+        body = _erode(_body_mask(plan, st, c_f, c_a), cfg.border_px)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
     return _Edges(st.lo, n, st.fine, st.fluid, st.contrast, st.seed, v_in, v_out, body & (v_in >= -half),
                   body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
@@ -1634,16 +1696,42 @@ def _smooth_valid_rows(
     sums = csum[:, :, 2 * h + 1 : 2 * h + 1 + n] - csum[:, :, :n]
     fit, slope, have = _window_line(np.moveaxis(sums, 1, 0), k, x)  # (k, B, n), (k, B, n), (B, n)
     fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
-    fits, slopes = [], []
-    for b, m in enumerate(lengths):
-        f, hv = fit[b, :, :m], have[b, :m]
-        if not hv.all():
-            xm = x[:m]
-            for row in f:
-                row[~hv] = np.interp(xm[~hv], xm[hv], row[hv])
-        fits.append(f)
-        slopes.append(slope[b, :, :m])
-    return fits, slopes
+    inside = x[None, :] < np.array(lengths)[:, None]
+    known, unknown = have & inside, ~have & inside
+    gaps = unknown.any(axis=1)
+    if gaps.any() and known.any(axis=1)[gaps].all():
+        _fill_rows(fit, known, unknown, x)
+    elif gaps.any():  # a frame with nothing to interpolate from: np.interp raises as per frame
+        for b, m in enumerate(lengths):
+            f, hv = fit[b, :, :m], have[b, :m]
+            if not hv.all():
+                for row in f:
+                    row[~hv] = np.interp(x[:m][~hv], x[:m][hv], row[hv])
+    return [fit[b, :, :m] for b, m in enumerate(lengths)], [slope[b, :, :m] for b, m in enumerate(lengths)]
+
+
+def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
+    """Fill ``fit[b, r, j]`` where ``unknown[b, j]`` by linear interpolation over station
+    ``j`` between frame ``b``'s ``known`` stations (the end values beyond them), in place:
+    the per-frame ``np.interp`` of :func:`_smooth_valid` for all frames in one call per row.
+
+    The frames' stations are laid on one axis ``n + 2`` apart, each flanked by a point of
+    its first and of its last known value, so no query interpolates across frames; the
+    differences of the (integer) positions are exact, so each value equals its frame's own.
+    """
+    n_frames, n = known.shape
+    pos = x[None, :] + (n + 2.0) * np.arange(n_frames)[:, None]
+    rows = np.flatnonzero(known.any(axis=1))
+    first = np.argmax(known[rows], axis=1)
+    last = n - 1 - np.argmax(known[rows, ::-1], axis=1)
+    kb, kj = np.nonzero(known)
+    xp = np.concatenate([pos[rows, 0] - 1.0, pos[kb, kj], pos[rows, 0] + n])
+    order = np.argsort(xp, kind="stable")
+    qb, qj = np.nonzero(unknown)
+    xq = pos[qb, qj]
+    for r in range(fit.shape[1]):
+        fp = np.concatenate([fit[rows, r, first], fit[kb, r, kj], fit[rows, r, last]])
+        fit[qb, r, qj] = np.interp(xq, xp[order], fp[order])
 
 
 def _split(x: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
@@ -1660,7 +1748,7 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     cover = np.concatenate([st.cover[:, : st.n] for st in strips], axis=1)
     seed = np.concatenate([st.seed[: st.n] for st in strips])
     low, high = _half_crossings(cover, seed, cfg.edge_level)
-    body = np.concatenate([_erode(st.darkness[: st.n] >= cfg.body_level, cfg.border_px) for st in strips])
+    body = np.concatenate(_erode_rows([st.darkness[: st.n] >= cfg.body_level for st in strips], cfg.border_px))
     px = np.concatenate([st.px for st in strips])
     wall = np.concatenate([st.wall for st in strips])
     planes = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
@@ -1675,8 +1763,48 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
         for b, (lf, la) in zip(local, fits):
             level[b] = np.where(_near(fluid_ok[b], window), 0.5 * (lf + la), level[b])
     low = _relevel(cover, low, np.isfinite(low), np.concatenate(level))
-    return [_edges_from(plan, st, lw, hg, c_f, c_a)
-            for st, lw, hg, (c_f, c_a) in zip(strips, _split(low, ends), _split(high, ends), levels)]
+    bodies = _erode_rows([_body_mask(plan, st, c_f, c_a) for st, (c_f, c_a) in zip(strips, levels)], cfg.border_px)
+    return [_edges_from(plan, st, lw, hg, c_f, c_a, bd)
+            for st, lw, hg, (c_f, c_a), bd in zip(strips, _split(low, ends), _split(high, ends), levels, bodies)]
+
+
+def _distance_from_tip_rows(lines: list[np.ndarray], tips_mm: np.ndarray, tips: list[float]) -> list[np.ndarray]:
+    """:func:`_distance_from_tip` of several centre lines at once, equal to it line by line.
+
+    The lines are right-aligned in one array, padded in front with their first point (zero
+    segments), so that each row's reversed running sum adds the line's own segments in the
+    same order, then zeros.
+
+    Parameters
+    ----------
+    lines : list of ndarray, shape (n_b, 2)
+        Per frame, centre-line points (mm), basal first (at least one point each).
+    tips_mm : ndarray, shape (B, 2)
+        Per frame, the tip (mm).
+    tips : list of float
+        Per frame, the tip's fractional station; stations beyond it get 0.
+
+    Returns
+    -------
+    list of ndarray, shape (n_b,)
+    """
+    lengths = [len(line) for line in lines]
+    n = max(lengths)
+    padded = np.empty((len(lines), n, 2))
+    for b, (line, m) in enumerate(zip(lines, lengths)):
+        padded[b, : n - m] = line[0]
+        padded[b, n - m :] = line
+    d = np.diff(padded, axis=1)
+    seg = np.hypot(d[:, :, 0], d[:, :, 1])
+    s = np.zeros((len(lines), n))
+    s[:, :-1] = np.cumsum(seg[:, ::-1], axis=1)[:, ::-1]
+    last = padded[:, -1] - tips_mm
+    s += np.hypot(last[:, 0], last[:, 1])[:, None]
+    out = []
+    for b, m in enumerate(lengths):
+        row = s[b, n - m :]
+        out.append(np.where(np.arange(m) > tips[b], 0.0, row))
+    return out
 
 
 def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
@@ -1699,40 +1827,40 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     rows = list(range(len(edges)))
     s1 = [plan.p_mm[e.lo + e.n - 1] - plan.p_mm[e.lo : e.lo + e.n] for e in edges]
     v_c, measured1, _ = offsets(rows, s1, [np.ones(e.n) for e in edges])
-    live, measured = [], {}
-    for b, e in enumerate(edges):
-        idx = np.flatnonzero(measured1[b])
-        if len(idx) < 3:
-            continue
-        med = np.zeros(e.n)
-        med[idx] = _running_median(v_c[b][idx], k_smooth)
-        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
-        live.append(b)
+    live = [b for b in range(len(edges)) if np.count_nonzero(measured1[b]) >= 3]
     if not live:
         return out
+    measured = {}
+    for b, m in zip(live, _running_median_rows([v_c[b][measured1[b]] for b in live], k_smooth)):
+        med = np.zeros(edges[b].n)
+        med[measured1[b]] = m
+        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
     fits, slants = _smooth_valid_rows([v_c[b][None, :] for b in live], [measured[b] for b in live],
                                       _odd(2.5 * cfg.gap_smooth_mm / step))
-    s2, stretch, tips = [], [], []
-    for b, fit, slant in zip(live, fits, slants):
+    stretch, tip_fs, tip_u = [], [], []
+    for b, slant in zip(live, slants):
         e, n, ms = edges[b], edges[b].n, measured[b]
-        lo, stations = e.lo, np.arange(e.n)
-        point, normal, half = plan.point_mm[lo : lo + n], plan.normal[lo : lo + n], plan.half_mm[lo : lo + n]
-        centre = fit[0]
+        stations, half_tip = np.arange(n), float(plan.half_mm[e.lo + n - 1])
         stretch.append(np.sqrt(1.0 + (slant[0] / step) ** 2))
         # the tip: the half-level crossing along the centre line, extrapolated from the body
         last = int(np.flatnonzero(ms)[-1])
         if (n - 1 - last) * step <= cfg.tip_reach_mm:
             tip_v = _extrapolate(stations[ms], v_c[b][ms], float(n - 1), 1.0 / step)
         else:  # no body seen near the tip: the darkest offset of the last dark stations
-            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * float(half[-1])
-        tip_u = min(max(tip_v / float(half[-1]), -1.0), 1.0)
+            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * half_tip
+        u = min(max(tip_v / half_tip, -1.0), 1.0)
         k0 = max(n - 1 - span, 0)
-        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (tip_u - u0) / du, np.array([-1.0, 0.0, 1.0]))
-        tip_f = k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0))
-        tip_mm = plan.to_mm(np.array([lo + tip_f]), np.array([tip_u]))[0]
-        tips.append((tip_f, tip_mm))
-        # pass 2: distance along the measured centre line, slant across the channel -> gaps
-        s2.append(_distance_from_tip(point + centre[:, None] * normal, tip_mm, stations, tip_f))
+        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (u - u0) / du, np.array([-1.0, 0.0, 1.0]))
+        tip_fs.append(k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0)))
+        tip_u.append(u)
+    tip_mm = plan.to_mm(np.array([edges[b].lo for b in live]) + np.array(tip_fs), np.array(tip_u))  # row-wise
+    tips = list(zip(tip_fs, tip_mm))
+    # pass 2: distance along the measured centre line, slant across the channel -> gaps
+    lines = []
+    for b, fit in zip(live, fits):
+        e = edges[b]
+        lines.append(plan.point_mm[e.lo : e.lo + e.n] + fit[0][:, None] * plan.normal[e.lo : e.lo + e.n])
+    s2 = _distance_from_tip_rows(lines, tip_mm, tip_fs)
     v_c2, measured2, radius = offsets(live, s2, stretch)
     done, values, valid = [], [], []
     for i, b in enumerate(live):
@@ -1761,21 +1889,30 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     return out
 
 
-def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
-    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
-    cfg, lo = plan.cfg, e.lo
+def _result_points(plan: MeasurePlan, e: _Edges, c: _CentreLine) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stage 4's stations ``keep`` (every ~``angle_step_mm``, tip first), its centre line
+    (tip, then the kept stations' points) and the points whose SPEC angles it needs: the tip
+    alone when it is in the entry channel, else the centre line."""
     stations = np.arange(e.n)
-    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(cfg.angle_step_mm / plan.step_mm)))]
+    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(plan.cfg.angle_step_mm / plan.step_mm)))]
     centreline = np.vstack([c.tip_mm[None, :], c.line[keep]])
+    return keep, centreline, centreline[:1] if e.lo + c.tip_f < plan.i_start else centreline
+
+
+def _result_from(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float], keep: np.ndarray,
+                 centreline: np.ndarray, theta: np.ndarray) -> FrameMeasurement:
+    """Stage 4's result from :func:`_result_points` (``keep``, ``centreline``) and the SPEC
+    angles of its points."""
+    cfg, lo = plan.cfg, e.lo
     gaps = np.concatenate([c.gap[keep[:1]] if len(keep) else c.gap[-1:], c.gap[keep]])
     radii = np.concatenate([[plan.r_tip_mm], c.radius[keep]])
     if lo + c.tip_f < plan.i_start:  # tip in the entry channel: theta = phi (SPEC §2), no contact
-        theta_tip = float(_spiral_angle(c.tip_mm[None, :], plan.angles)[0])
+        theta_tip = float(theta[0])
         angles = ContactAngles(theta_tip, theta_tip, 0.0, c.tip_mm, c.tip_mm)
         extras["depth_mm"] = -float(plan.p_mm[plan.i_start] - plan.p_mm[lo] - c.tip_f * plan.step_mm)
     else:
         angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps,
-                                theta=_spiral_angle(centreline, plan.angles))
+                                theta=theta)
         d = centreline[1:] - centreline[:-1]
         extras["depth_mm"] = float(np.hypot(d[:, 0], d[:, 1]).sum())
     side = radii[1:, None] * plan.normal[lo + keep]
@@ -1784,6 +1921,23 @@ def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, floa
         True, "", angles.theta_tip, angles.theta_bot, angles.theta_con, angles.tip_mm, angles.bot_mm,
         centreline, outline, gaps, extras,
     )
+
+
+def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
+    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
+    keep, centreline, points = _result_points(plan, e, c)
+    return _result_from(plan, e, c, extras, keep, centreline, _spiral_angle(points, plan.angles))
+
+
+def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, dict[str, float]]]
+                   ) -> list[FrameMeasurement]:
+    """:func:`_result` of several frames, the SPEC angles of all their points in one call
+    (:func:`_spiral_angle` works point by point, so each frame's equal its own)."""
+    prepared = [_result_points(plan, e, c) for e, c, _ in staged]
+    points = [p for _, _, p in prepared]
+    theta = np.split(_spiral_angle(np.concatenate(points), plan.angles), np.cumsum([len(p) for p in points])[:-1])
+    return [_result_from(plan, e, c, extras, keep, line, t)
+            for (e, c, extras), (keep, line, _), t in zip(staged, prepared, theta)]
 
 
 def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
@@ -1908,7 +2062,8 @@ def measure_frames_batch(
     The survey (stage 1) of the frames is computed stacked along a leading axis, a few dozen
     NumPy calls for the whole batch instead of per frame; the edges and the centre line
     (stages 2–3) run their station-wise helpers once on all frames' stations (see the notes
-    above :func:`_smooth_valid_rows`); the angles (stage 4) run per frame. The
+    above :func:`_smooth_valid_rows`); the angles (stage 4) take the SPEC angles of all
+    frames' points in one call and the rest per frame. The
     results equal :func:`measure_frame`'s frame by frame (the per-frame function stays the
     reference; ``tests/test_angles_batch.py`` compares them).
 
@@ -1924,8 +2079,8 @@ def measure_frames_batch(
     -------
     list of FrameMeasurement
         One per frame, in order. ``timings['survey']``, ``timings['edges']``,
-        ``timings['centre_line']`` and ``extras['time_ms']`` of each frame hold an equal share
-        of the batch's stages 1–3.
+        ``timings['centre_line']``, ``timings['angles']`` and ``extras['time_ms']`` of each
+        frame hold an equal share of the batch's stages (stage 4's among the frames measured).
 
     Notes
     -----
@@ -1971,7 +2126,27 @@ def measure_frames_batch(
                 edges_s, centre_s = (t2 - t1) / len(todo), (t3 - t2) / len(todo)
             except (ValueError, IndexError, FloatingPointError, cv2.error):
                 staged = {}
+        done: dict[int, FrameMeasurement] = {}
+        measured = [k for k, (_, c) in staged.items() if c is not None]
+        if measured:
+            t4 = time.perf_counter()
+            try:  # stage 4 together; on any error, frame by frame below
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    finals = _results_batch(plan, [
+                        (*staged[k], dict(contrast=surveys[k].contrast,
+                                          edge_fraction=float(staged[k][1].measured.sum()) / len(staged[k][1].measured)))
+                        for k in measured])
+                angles_s = (time.perf_counter() - t4) / len(measured)
+                for k, result in zip(measured, finals):
+                    result.timings.update(survey=share_s, edges=edges_s, centre_line=centre_s, angles=angles_s)
+                    result.extras["time_ms"] = 1e3 * (share_s + edges_s + centre_s + angles_s)
+                    done[k] = result
+            except (ValueError, IndexError, FloatingPointError, cv2.error):
+                done = {}
         for k, (i, img, sv) in enumerate(zip(where, imgs, surveys)):
+            if k in done:
+                results[i] = done[k]
+                continue
             t4 = time.perf_counter()
             if sv is None:
                 results[i] = measure_frame(img, plan)

@@ -592,6 +592,25 @@ def _template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack
     return _TemplateStack(size, rotations, stack_real, np.ascontiguousarray(images.mean(axis=1)))
 
 
+_TEMPLATE_CACHE: dict[tuple, _TemplateStack] = {}
+
+
+def _cached_template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack:
+    """:func:`_template_stack`, kept for the last walls and settings it was built for: every
+    registration in a process (each video of a batch, a re-registration) of the same phantom
+    reuses it (~35 ms each). The key holds the walls' bytes, so equal walls hit."""
+    key = (model.points.tobytes(), model.normals.tobytes(), model.spacing_mm, cfg.coarse_px_per_mm,
+           cfg.coarse_rotations)
+    tpl = _TEMPLATE_CACHE.get(key)
+    if tpl is None:
+        tpl = _template_stack(model, cfg)
+        for a in (tpl.rotations, tpl.stack_real, tpl.mean):
+            a.flags.writeable = False
+        _TEMPLATE_CACHE.clear()
+        _TEMPLATE_CACHE[key] = tpl
+    return tpl
+
+
 def _peaks(score: np.ndarray, n: int, radius: int) -> list[tuple[int, int]]:
     """Up to ``n`` local maxima (row, col) of ``score``, at least ``radius`` apart."""
     k = 2 * radius + 1
@@ -638,7 +657,7 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     peaks are kept; all rotations and both mirrors are then scored at those peaks by one
     matrix product of image patches with the template stack.
     """
-    tpl = _template_stack(model, cfg)
+    tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
     lo, hi = cfg.px_per_mm_range
     n_scales = max(1, int(math.ceil(math.log(hi / lo) / math.log1p(cfg.coarse_scale_step))) + 1)
