@@ -17,6 +17,7 @@ import argparse
 import os
 import sys
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -116,14 +117,34 @@ def _dask_client(address: str, command: str = "extract"):
         raise InputError(address, f"cannot connect to the Dask scheduler ({reason})") from exc
 
 
+@contextmanager
+def _scheduler(args: argparse.Namespace, command: str):
+    """The Dask client of ``--scheduler`` (closed afterwards), or None to run on ``--workers``.
+
+    Raises
+    ------
+    UsageError
+        Both ``--workers`` and ``--scheduler`` given, or Dask not installed.
+    """
+    if not args.scheduler:
+        yield None
+        return
+    if args.workers != 1:
+        raise UsageError(f"tympani {command}: give --workers or --scheduler, not both "
+                         f"(see 'tympani {command} --help')")
+    client = _dask_client(args.scheduler, command)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
 def _run_extract(args: argparse.Namespace) -> int:
     from pipeline.batch import extract_batch, read_manifest
     from pipeline.io import atomic_write_csv
 
     if bool(args.videos) == bool(args.manifest):
         raise UsageError("tympani extract: give either VIDEO... or --manifest M (see 'tympani extract --help')")
-    if args.scheduler and args.workers != 1:
-        raise UsageError("tympani extract: give --workers or --scheduler, not both (see 'tympani extract --help')")
     if args.manifest:
         # missing files are reported per trial by the extraction (the others still run), and a
         # missing force log does not concern extract
@@ -134,16 +155,9 @@ def _run_extract(args: argparse.Namespace) -> int:
     else:
         items = list(args.videos)
     cfg = _extract_config(args)
-    if args.scheduler:
-        client = _dask_client(args.scheduler)
-        try:
-            summary = extract_batch(items, args.out, cfg, executor=client, overwrite=args.overwrite,
-                                    progress=not args.quiet, fps=args.fps)
-        finally:
-            client.close()
-    else:
-        summary = extract_batch(items, args.out, cfg, workers=args.workers, overwrite=args.overwrite,
-                                progress=not args.quiet, fps=args.fps)
+    with _scheduler(args, "extract") as client:
+        summary = extract_batch(items, args.out, cfg, workers=args.workers, executor=client,
+                                overwrite=args.overwrite, progress=not args.quiet, fps=args.fps)
     for _, row in summary[summary["status"] == "failed"].iterrows():
         print(f"tympani: {row['error']}", file=sys.stderr)
     for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
@@ -382,14 +396,8 @@ def _run_run(args: argparse.Namespace) -> int:
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--overwrite"] if args.overwrite else []
     command += ["--scheduler", args.scheduler] if args.scheduler else []
-    if args.scheduler and args.workers != 1:
-        raise UsageError("tympani run: give --workers or --scheduler, not both (see 'tympani run --help')")
-    client = _dask_client(args.scheduler, "run") if args.scheduler else None
-    try:
+    with _scheduler(args, "run") as client:
         result = run_pipeline(args.manifest, args.out, _run_config(args), command=command, executor=client)
-    finally:
-        if client is not None:
-            client.close()
     _print_run(result)
     return result.exit_status
 
