@@ -739,17 +739,6 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
-def _erode_rows(masks: list[np.ndarray], reach: int) -> list[np.ndarray]:
-    """:func:`_erode` of several 1-D masks at once: each padded with False to a common length,
-    which clears its last ``reach`` stations as the clipping at its own end does."""
-    lengths = [len(m) for m in masks]
-    padded = np.zeros((len(masks), max(lengths)), dtype=bool)
-    for row, m, n in zip(padded, masks, lengths):
-        row[:n] = m
-    eroded = _erode(padded, reach)
-    return [row[:n] for row, n in zip(eroded, lengths)]
-
-
 def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
     """Last station of the dark run that starts in the probe stations, bridging short gaps.
 
@@ -1019,19 +1008,6 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
     np.minimum(np.maximum(idx, 0, out=idx), len(x) - 1, out=idx)  # np.clip costs more per call
     return np.partition(x[idx], h, axis=1)[:, h]
-
-
-def _running_median_rows(xs: list[np.ndarray], size: int) -> list[np.ndarray]:
-    """:func:`_running_median` of several sequences (each non-empty) at once: their samples
-    laid end to end, each window's indices clamped to its own sequence's ends."""
-    h = int(size) // 2
-    lengths = np.array([len(x) for x in xs])
-    ends = np.cumsum(lengths)
-    starts = ends - lengths
-    first, last = np.repeat(starts, lengths)[:, None], np.repeat(ends - 1, lengths)[:, None]
-    idx = np.arange(-h, h + 1)[None, :] + np.arange(int(ends[-1]))[:, None]
-    np.minimum(np.maximum(idx, first, out=idx), last, out=idx)
-    return _split(np.partition(np.concatenate(xs)[idx], h, axis=1)[:, h], ends)
 
 
 def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
@@ -1346,20 +1322,46 @@ def _fluid_levels(
     return out
 
 
-def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """``np.interp(x, xp, fp[b])`` for each row ``b`` of ``fp``, in one call, equal to it row by row.
+def _interp_ragged(x: np.ndarray, row: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp(x[i], xp, fp[row[i]])`` for each query ``i``, in one call, equal to it.
 
-    The rows are laid on one axis ``span`` apart (more than ``x`` and ``xp`` span, all
-    at least 0; positions integers or halves, so their differences stay exact), each
-    flanked by a point of its first and of its last value, so no query interpolates across
-    rows and those beyond ``xp`` get the end values, as ``np.interp`` gives them.
+    The rows are laid on one axis ``span`` apart (more than ``x`` and ``xp`` span, all at least
+    0; positions integers or halves, so their differences stay exact), each flanked by a point of its
+    first and of its last value, so no query interpolates across rows.
+
+    Parameters
+    ----------
+    x : ndarray, shape (q,)
+        Query positions (at least 0).
+    row : ndarray, shape (q,), int
+        Row of ``fp`` of each query.
+    xp : ndarray, shape (m,)
+        Increasing sample positions (at least 0), common to all rows.
+    fp : ndarray, shape (B, m)
+        Sample values per row.
+
+    Returns
+    -------
+    ndarray, shape (q,)
+    """
+    n_rows = fp.shape[0]
+    span = float(np.ceil(max(float(x.max()), float(xp.max())))) + 3.0
+    off = span * np.arange(n_rows)[:, None]
+    pos = np.concatenate([off - 1.0, xp[None, :] + off, off + (span - 2.0)], axis=1)
+    val = np.concatenate([fp[:, :1], fp, fp[:, -1:]], axis=1)
+    return np.interp(x + span * row, pos.ravel(), val.ravel())
+
+
+def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp(x, xp, fp[b])`` for each row ``b`` of ``fp``, in one call (see
+    :func:`_interp_ragged`), equal to it row by row.
 
     Parameters
     ----------
     x : ndarray, shape (n,)
-        Query positions, common to all rows.
+        Query positions (at least 0; integers or halves), common to all rows.
     xp : ndarray, shape (m,)
-        Increasing sample positions, common to all rows.
+        Increasing sample positions (the same kind), common to all rows.
     fp : ndarray, shape (B, m)
         Sample values per row.
 
@@ -1367,12 +1369,8 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (B, n)
     """
-    n_rows, m = fp.shape
-    span = float(np.ceil(max(x.max(), xp.max()))) + 3.0
-    off = span * np.arange(n_rows)[:, None]
-    pos = np.concatenate([off - 1.0, xp[None, :] + off, off + (span - 2.0)], axis=1)
-    val = np.concatenate([fp[:, :1], fp, fp[:, -1:]], axis=1)
-    return np.interp(x[None, :] + off, pos.ravel(), val.ravel())
+    n_rows = fp.shape[0]
+    return _interp_ragged(np.tile(x, n_rows), np.repeat(np.arange(n_rows), len(x)), xp, fp).reshape(n_rows, len(x))
 
 
 def _row_quantiles(x: np.ndarray, keep: np.ndarray, q: float) -> np.ndarray:
@@ -1647,43 +1645,105 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
 
 # --------------------------------------------------------------------------- stages 2–3 on a batch
 #
-# Stages 2 and 3 of B frames in lock-step (measure_frames_batch). The helpers that work station
-# by station (_half_crossings, _plateaus, _relevel, _centre_offsets) run once on the frames'
-# stations laid end to end; _smooth_valid, whose windows must stop at each frame's last
-# station, runs on frames padded to a common length with invalid (zero-weight) stations, which
-# leaves every frame's cumulative sums, and so its fits, exactly what they are alone. The
-# rest (medians, the tip) stays per frame. Results equal _edges and _centre_line frame by frame.
+# Stages 2 and 3 of B frames in lock-step (measure_frames_batch). The frames' stations are laid
+# end to end on one axis (a _Ragged batch), so each step is one NumPy call for all frames:
+# station-wise arithmetic as it is; windows (erosion, _near, running medians) clipped at each
+# frame's ends; per-frame statistics (medians, counts, last stations, the tip) from the frames
+# padded to a common length; _smooth_valid, whose windows must stop at each frame's last
+# station, on frames padded with invalid (zero-weight) stations, which leaves every frame's
+# cumulative sums, and so its fits, exactly what they are alone. The only Python loops left are
+# the per-frame remaps and the results' assembly. Results equal _edges and _centre_line frame by
+# frame (to rounding: a few sums add in another order).
 
 
-def _smooth_valid_rows(
-    values: list[np.ndarray], valid: list[np.ndarray], size: int
-) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """:func:`_smooth_valid` of several frames at once, equal to it frame by frame.
+@dataclass(frozen=True, eq=False)
+class _Ragged:
+    """Frames' stations laid end to end on one axis.
+
+    Frame ``b`` holds positions ``start[b] .. start[b] + n[b] - 1``; ``row`` and ``local`` give
+    each position's frame and its station in that frame. Every frame holds at least one.
+    """
+
+    n: np.ndarray
+    start: np.ndarray
+    row: np.ndarray
+    local: np.ndarray
+
+    @classmethod
+    def of(cls, lengths: np.ndarray | list[int]) -> "_Ragged":
+        """The layout of frames of ``lengths`` (stations, each at least 1)."""
+        n = np.asarray(lengths, dtype=np.intp)
+        start = np.zeros(len(n), dtype=np.intp)
+        np.cumsum(n[:-1], out=start[1:])
+        row = np.repeat(np.arange(len(n)), n)
+        return cls(n, start, row, np.arange(int(n.sum())) - start[row])
+
+    def pad(self, x: np.ndarray, fill: Any) -> np.ndarray:
+        """``x`` (shape (..., total)) as (..., B, max n), each frame left-aligned, ``fill`` after."""
+        out = np.full(x.shape[:-1] + (len(self.n), int(self.n.max())), fill, dtype=x.dtype)
+        out[..., self.row, self.local] = x
+        return out
+
+    def unpad(self, x: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`pad`: (..., B, max n) to (..., total)."""
+        return x[..., self.row, self.local]
+
+    def count(self, mask: np.ndarray) -> np.ndarray:
+        """Per frame, how many of its positions ``mask`` holds at."""
+        return np.add.reduceat(mask.astype(np.intp), self.start)
+
+    def last(self, mask: np.ndarray) -> np.ndarray:
+        """Per frame, the last station where ``mask`` holds (−1 where none)."""
+        return np.maximum.reduceat(np.where(mask, self.local, -1), self.start)
+
+    def split(self, x: np.ndarray) -> list[np.ndarray]:
+        """``x`` (shape (..., total)) cut into its frames (views)."""
+        return [x[..., s : s + m] for s, m in zip(self.start.tolist(), self.n.tolist())]
+
+
+def _erode_ragged(mask: np.ndarray, rg: _Ragged, reach: int) -> np.ndarray:
+    """:func:`_erode` of each frame of a ragged ``mask`` (stations beyond a frame's ends fail)."""
+    out = mask.copy()
+    for k in range(1, reach + 1):
+        out[k:] &= mask[:-k]
+        out[:-k] &= mask[k:]
+    return out & (rg.local >= reach) & (rg.local < rg.n[rg.row] - reach)
+
+
+def _near_ragged(mask: np.ndarray, rg: _Ragged, size: int) -> np.ndarray:
+    """:func:`_near` of each frame of a ragged ``mask`` (windows clipped at the frame's ends)."""
+    h = int(size) // 2
+    csum = np.zeros(len(mask) + 1, dtype=np.intp)
+    np.cumsum(mask, out=csum[1:])
+    i = np.arange(len(mask))
+    first = rg.start[rg.row]
+    last = first + rg.n[rg.row] - 1
+    return csum[np.minimum(i + h, last) + 1] > csum[np.maximum(i - h, first)]
+
+
+def _smooth_valid_padded(y: np.ndarray, w: np.ndarray, lengths: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_smooth_valid` of frames padded to a common length, equal to it frame by frame.
 
     Parameters
     ----------
-    values : list of ndarray, shape (k, n_b)
-        Per frame, ``k`` profiles (any unit) along its ``n_b`` stations (same ``k`` for all).
-    valid : list of ndarray, shape (n_b,), bool
-        Per frame, the stations measured (at least one per frame).
+    y : ndarray, shape (B, k, n)
+        Per frame, ``k`` profiles (any unit) along its stations, 0 at stations not valid and
+        beyond its length.
+    w : ndarray, shape (B, n), bool
+        Valid stations (at least one per frame; False beyond its length).
+    lengths : ndarray, shape (B,)
+        Stations of each frame.
     size : int
         Window (stations) of the local fits.
 
     Returns
     -------
-    fit, slope : list of ndarray, shape (k, n_b)
-        Per frame, as :func:`_smooth_valid` (unit, unit per station).
+    fit, slope : ndarray, shape (B, k, n)
+        As :func:`_smooth_valid` (unit, unit per station) up to each frame's length.
     """
-    n_rows, k = len(values), values[0].shape[0]
-    lengths = [len(v) for v in valid]
-    n = max(lengths)
+    n_rows, k, n = y.shape
     h = size // 2
     x = np.arange(n, dtype=float)
-    w = np.zeros((n_rows, n))
-    y = np.zeros((n_rows, k, n))
-    for b, (vals, ok) in enumerate(zip(values, valid)):  # padding: weight 0, value 0
-        w[b, : lengths[b]] = ok
-        np.copyto(y[b, :, : lengths[b]], vals, where=ok)
     csum = np.zeros((n_rows, 3 + 2 * k, n + 2 * h + 1))  # as in _smooth_valid, one block per frame
     body = csum[:, :, h + 1 : n + h + 1]
     body[:, 0] = w
@@ -1696,18 +1756,18 @@ def _smooth_valid_rows(
     sums = csum[:, :, 2 * h + 1 : 2 * h + 1 + n] - csum[:, :, :n]
     fit, slope, have = _window_line(np.moveaxis(sums, 1, 0), k, x)  # (k, B, n), (k, B, n), (B, n)
     fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
-    inside = x[None, :] < np.array(lengths)[:, None]
+    inside = x[None, :] < np.asarray(lengths)[:, None]
     known, unknown = have & inside, ~have & inside
     gaps = unknown.any(axis=1)
     if gaps.any() and known.any(axis=1)[gaps].all():
         _fill_rows(fit, known, unknown, x)
     elif gaps.any():  # a frame with nothing to interpolate from: np.interp raises as per frame
-        for b, m in enumerate(lengths):
+        for b, m in enumerate(np.asarray(lengths).tolist()):
             f, hv = fit[b, :, :m], have[b, :m]
             if not hv.all():
                 for row in f:
                     row[~hv] = np.interp(x[:m][~hv], x[:m][hv], row[hv])
-    return [fit[b, :, :m] for b, m in enumerate(lengths)], [slope[b, :, :m] for b, m in enumerate(lengths)]
+    return fit, slope
 
 
 def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
@@ -1734,42 +1794,75 @@ def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.nd
         fit[qb, r, qj] = np.interp(xq, xp[order], fp[order])
 
 
-def _split(x: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
-    """``x`` (stations of several frames laid end to end, along the last axis) cut at ``ends``."""
-    return np.split(x, ends[:-1], axis=-1)
-
-
 def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Survey]) -> list[_Edges]:
     """:func:`_edges` of each frame (with its survey), equal to it frame by frame."""
-    cfg, step = plan.cfg, plan.step_mm
-    strips = [_fine_strip(img, plan, sv) for img, sv in zip(imgs, surveys)]
-    ns = np.array([st.n for st in strips])
-    ends = np.cumsum(ns)
-    cover = np.concatenate([st.cover[:, : st.n] for st in strips], axis=1)
-    seed = np.concatenate([st.seed[: st.n] for st in strips])
-    low, high = _half_crossings(cover, seed, cfg.edge_level)
-    body = np.concatenate(_erode_rows([st.darkness[: st.n] >= cfg.body_level for st in strips], cfg.border_px))
-    px = np.concatenate([st.px for st in strips])
-    wall = np.concatenate([st.wall for st in strips])
-    planes = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
-    c_fluid, c_array, fluid_ok, array_ok = (_split(a, ends) for a in planes)
-    levels = [_edge_levels(*a) for a in zip(c_fluid, c_array, fluid_ok, array_ok)]
-    level = [np.full(n, 0.5 * (c_f + c_a)) for n, (c_f, c_a) in zip(ns, levels)]
+    cfg, step, ppm = plan.cfg, plan.step_mm, float(plan.pose.px_per_mm)
+    sa, n_all = max(1, int(cfg.coarse_stride)), len(plan.p_mm)
+    span = max(4, int(np.ceil(0.4 / step)))
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    # the fine strips (_fine_strip), laid end to end
+    tips = np.array([sv.tip_est for sv in surveys], dtype=np.intp)
+    lo = np.where(tips > plan.i_start + span, plan.i_start, 0)
+    hi = np.minimum(tips + sa + span + 1, n_all)
+    fines = [cv2.remap(img, plan.map_x[:, a:b], plan.map_y[:, a:b], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+             for img, a, b in zip(imgs, lo.tolist(), hi.tolist())]
+    strip = _Ragged.of(hi - lo)
+    station = lo[strip.row] + strip.local
+    fluid_c = np.stack([sv.fluid_c for sv in surveys])
+    fluid = _interp_ragged(station, strip.row, sa * np.arange(fluid_c.shape[1]), fluid_c)
+    contrast = fluid * (1.0 - np.array([sv.rho for sv in surveys])[strip.row])
+    blurred = np.concatenate([cv2.blur(f, (3, 1)) for f in fines], axis=1)
+    cover = blurred.astype(np.float32) * (-1.0 / contrast) + fluid / contrast
+    seed_c = np.stack([sv.seed_c for sv in surveys])
+    seed = np.minimum(sa * seed_c[strip.row, station // sa], len(plan.u) - 1)
+    darkness = np.where(plan.in_view[station], cover[seed, np.arange(len(station))], 0.0)
+    first_n = np.minimum(tips + sa, hi - 1) - lo + 1  # stations where the array's dark end is sought
+    last_dark = strip.last((darkness >= cfg.dark_level) & (strip.local < first_n[strip.row]))
+    # the stations that hold the array
+    arr = _Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
+    take = strip.start[arr.row] + arr.local
+    cover, seed_a, dark_a = cover[:, take], seed[take], darkness[take]
+    half = plan.half_mm[lo[arr.row] + arr.local]
+    px = du * half * ppm  # px per offset index at each station
+    wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
+    # the edges (_edges)
+    low, high = _half_crossings(cover, seed_a, cfg.edge_level)
+    body = _erode_ragged(dark_a >= cfg.body_level, arr, cfg.border_px)
+    c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
+    c_f = np.where(arr.count(fluid_ok) >= 10, _row_quantiles(arr.pad(c_fluid, 0.0), arr.pad(fluid_ok, False), 0.5), 0.0)
+    c_a = np.where(arr.count(array_ok) >= 10, _row_quantiles(arr.pad(c_array, 0.0), arr.pad(array_ok, False), 0.5), 1.0)
+    implausible = c_a - c_f < 0.3  # keep the global levels (_edge_levels)
+    c_f, c_a = np.where(implausible, 0.0, c_f), np.where(implausible, 1.0, c_a)
+    level = (0.5 * (c_f + c_a))[arr.row]
     window = _odd(2.0 * cfg.gap_smooth_mm / step)
-    local = [b for b in range(len(strips)) if fluid_ok[b].sum() >= 3]
-    if local:  # where the fluid shows clear of the wall, the local levels
-        fits, _ = _smooth_valid_rows([np.vstack([c_fluid[b], c_array[b]]) for b in local],
-                                     [fluid_ok[b] for b in local], window)
-        for b, (lf, la) in zip(local, fits):
-            level[b] = np.where(_near(fluid_ok[b], window), 0.5 * (lf + la), level[b])
-    low = _relevel(cover, low, np.isfinite(low), np.concatenate(level))
-    bodies = _erode_rows([_body_mask(plan, st, c_f, c_a) for st, (c_f, c_a) in zip(strips, levels)], cfg.border_px)
-    return [_edges_from(plan, st, lw, hg, c_f, c_a, bd)
-            for st, lw, hg, (c_f, c_a), bd in zip(strips, _split(low, ends), _split(high, ends), levels, bodies)]
+    local = np.flatnonzero(arr.count(fluid_ok) >= 3)
+    if len(local):  # where the fluid shows clear of the wall, the local levels
+        sub = np.isin(arr.row, local)
+        part = _Ragged.of(arr.n[local])
+        ok = fluid_ok[sub]
+        y = np.where(ok, np.vstack([c_fluid[sub], c_array[sub]]), 0.0)
+        fit, _ = _smooth_valid_padded(np.moveaxis(part.pad(y, 0.0), 0, 1), part.pad(ok, False), part.n, window)
+        lf, la = part.unpad(np.moveaxis(fit, 1, 0))
+        near = np.zeros(len(level), dtype=bool)
+        near[sub] = _near_ragged(ok, part, window)
+        smooth = np.zeros(len(level))
+        smooth[sub] = 0.5 * (lf + la)
+        level = np.where(near, smooth, level)
+    low = _relevel(cover, low, np.isfinite(low), level)
+    cf, ca = c_f[arr.row], c_a[arr.row]
+    body = _erode_ragged((dark_a - cf) / (ca - cf) >= cfg.body_level, arr, cfg.border_px)
+    v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
+    ok_in, ok_out = body & (v_in >= -half), body & (v_out <= half)  # NaN compares False
+    out = []
+    for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), strip.n.tolist(), arr.start.tolist(), arr.n.tolist())):
+        a = slice(s, s + m)
+        out.append(_Edges(int(lo[b]), m, fines[b], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
+                          v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b]))))
+    return out
 
 
-def _distance_from_tip_rows(lines: list[np.ndarray], tips_mm: np.ndarray, tips: list[float]) -> list[np.ndarray]:
-    """:func:`_distance_from_tip` of several centre lines at once, equal to it line by line.
+def _distance_from_tip_ragged(line: np.ndarray, tip_mm: np.ndarray, tip_f: np.ndarray, rg: _Ragged) -> np.ndarray:
+    """:func:`_distance_from_tip` of each frame's centre line, equal to it frame by frame.
 
     The lines are right-aligned in one array, padded in front with their first point (zero
     segments), so that each row's reversed running sum adds the line's own segments in the
@@ -1777,34 +1870,40 @@ def _distance_from_tip_rows(lines: list[np.ndarray], tips_mm: np.ndarray, tips: 
 
     Parameters
     ----------
-    lines : list of ndarray, shape (n_b, 2)
-        Per frame, centre-line points (mm), basal first (at least one point each).
-    tips_mm : ndarray, shape (B, 2)
+    line : ndarray, shape (total, 2)
+        Centre-line points (mm) of the frames' stations (ragged ``rg``), basal first.
+    tip_mm : ndarray, shape (B, 2)
         Per frame, the tip (mm).
-    tips : list of float
+    tip_f : ndarray, shape (B,)
         Per frame, the tip's fractional station; stations beyond it get 0.
+    rg : _Ragged
+        The frames' layout.
 
     Returns
     -------
-    list of ndarray, shape (n_b,)
+    ndarray, shape (total,)
     """
-    lengths = [len(line) for line in lines]
-    n = max(lengths)
-    padded = np.empty((len(lines), n, 2))
-    for b, (line, m) in enumerate(zip(lines, lengths)):
-        padded[b, : n - m] = line[0]
-        padded[b, n - m :] = line
+    n = int(rg.n.max())
+    col = n - rg.n[rg.row] + rg.local
+    padded = np.repeat(line[rg.start][:, None, :], n, axis=1)
+    padded[rg.row, col] = line
     d = np.diff(padded, axis=1)
     seg = np.hypot(d[:, :, 0], d[:, :, 1])
-    s = np.zeros((len(lines), n))
+    s = np.zeros((len(rg.n), n))
     s[:, :-1] = np.cumsum(seg[:, ::-1], axis=1)[:, ::-1]
-    last = padded[:, -1] - tips_mm
+    last = padded[:, -1] - tip_mm
     s += np.hypot(last[:, 0], last[:, 1])[:, None]
-    out = []
-    for b, m in enumerate(lengths):
-        row = s[b, n - m :]
-        out.append(np.where(np.arange(m) > tips[b], 0.0, row))
-    return out
+    return np.where(rg.local > tip_f[rg.row], 0.0, s[rg.row, col])
+
+
+def _running_median_ragged(x: np.ndarray, rg: _Ragged, size: int) -> np.ndarray:
+    """:func:`_running_median` of each frame of a ragged ``x``, each window's indices clamped
+    to its own frame's ends."""
+    h = int(size) // 2
+    first = rg.start[rg.row][:, None]
+    idx = np.arange(-h, h + 1)[None, :] + np.arange(len(x))[:, None]
+    np.minimum(np.maximum(idx, first, out=idx), first + rg.n[rg.row][:, None] - 1, out=idx)
+    return np.partition(x[idx], h, axis=1)[:, h]
 
 
 def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
@@ -1815,78 +1914,146 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     tol = cfg.outlier_px / ppm
     span = max(4, int(np.ceil(0.4 / step)))
     out: list[_CentreLine | None] = [None] * len(edges)
-
-    def offsets(rows: list[int], s: list[np.ndarray], stretch: list[np.ndarray]) -> tuple[list, list, list]:
-        """_centre_offsets of frames ``rows``, their stations laid end to end."""
-        ends = np.cumsum([edges[b].n for b in rows])
-        cat = [np.concatenate([getattr(edges[b], name) for b in rows]) for name in ("v_in", "v_out", "ok_in", "ok_out")]
-        res = _centre_offsets(*cat, np.concatenate(s), np.concatenate(stretch), array, cfg.cap_min, tol)
-        return tuple(_split(a, ends) for a in res)
-
+    rg = _Ragged.of([e.n for e in edges])
+    lo = np.array([e.lo for e in edges], dtype=np.intp)
+    station = lo[rg.row] + rg.local
+    cat = [np.concatenate([getattr(e, name) for e in edges]) for name in ("v_in", "v_out", "ok_in", "ok_out")]
     # pass 1: distance from the tip along the backbone, array parallel to the channel
-    rows = list(range(len(edges)))
-    s1 = [plan.p_mm[e.lo + e.n - 1] - plan.p_mm[e.lo : e.lo + e.n] for e in edges]
-    v_c, measured1, _ = offsets(rows, s1, [np.ones(e.n) for e in edges])
-    live = [b for b in range(len(edges)) if np.count_nonzero(measured1[b]) >= 3]
-    if not live:
+    s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
+    v_c, measured, _ = _centre_offsets(*cat, s, np.ones(len(s)), array, cfg.cap_min, tol)
+    live = np.flatnonzero(rg.count(measured) >= 3)
+    if not len(live):
         return out
-    measured = {}
-    for b, m in zip(live, _running_median_rows([v_c[b][measured1[b]] for b in live], k_smooth)):
-        med = np.zeros(edges[b].n)
-        med[measured1[b]] = m
-        measured[b] = _inliers(v_c[b] - med, measured1[b], tol)
-    fits, slants = _smooth_valid_rows([v_c[b][None, :] for b in live], [measured[b] for b in live],
+    if len(live) < len(edges):  # the others have no centre line
+        sub = np.isin(rg.row, live)
+        rg, lo, station = _Ragged.of(rg.n[live]), lo[live], station[sub]
+        cat, v_c, measured = [a[sub] for a in cat], v_c[sub], measured[sub]
+    v_in, v_out, ok_in, ok_out = cat
+    n, row, local = rg.n, rg.row, rg.local
+    # outliers: off their neighbours' running median by more than 3 robust SDs (and tol)
+    at = np.flatnonzero(measured)
+    med = np.zeros(len(v_c))
+    med[at] = _running_median_ragged(v_c[at], _Ragged.of(rg.count(measured)), k_smooth)
+    dev = np.abs(v_c - med)
+    mad = _row_quantiles(rg.pad(dev, 0.0), rg.pad(measured, False), 0.5)
+    measured &= dev <= np.maximum(tol, 3.0 * 1.4826 * mad)[row]
+    y = np.where(measured, v_c, 0.0)[None, :]
+    fit, slant = _smooth_valid_padded(np.moveaxis(rg.pad(y, 0.0), 0, 1), rg.pad(measured, False), n,
                                       _odd(2.5 * cfg.gap_smooth_mm / step))
-    stretch, tip_fs, tip_u = [], [], []
-    for b, slant in zip(live, slants):
-        e, n, ms = edges[b], edges[b].n, measured[b]
-        stations, half_tip = np.arange(n), float(plan.half_mm[e.lo + n - 1])
-        stretch.append(np.sqrt(1.0 + (slant[0] / step) ** 2))
-        # the tip: the half-level crossing along the centre line, extrapolated from the body
-        last = int(np.flatnonzero(ms)[-1])
-        if (n - 1 - last) * step <= cfg.tip_reach_mm:
-            tip_v = _extrapolate(stations[ms], v_c[b][ms], float(n - 1), 1.0 / step)
-        else:  # no body seen near the tip: the darkest offset of the last dark stations
-            tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * half_tip
-        u = min(max(tip_v / half_tip, -1.0), 1.0)
-        k0 = max(n - 1 - span, 0)
-        along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (u - u0) / du, np.array([-1.0, 0.0, 1.0]))
-        tip_fs.append(k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0)))
-        tip_u.append(u)
-    tip_mm = plan.to_mm(np.array([edges[b].lo for b in live]) + np.array(tip_fs), np.array(tip_u))  # row-wise
-    tips = list(zip(tip_fs, tip_mm))
+    centre, slant = rg.unpad(fit[:, 0]), rg.unpad(slant[:, 0])
+    stretch = np.sqrt(1.0 + (slant / step) ** 2)
+    # the tip: the half-level crossing along the centre line, extrapolated from the body
+    last = rg.last(measured)
+    half_tip = plan.half_mm[lo + n - 1]
+    tip_v = _extrapolate_ragged(local.astype(float), v_c, measured & (local >= (last - 1.0 / step)[row]), 1.0 / step, rg)
+    for b in np.flatnonzero((n - 1 - last) * step > cfg.tip_reach_mm):  # no body near the tip: the darkest
+        e = edges[live[b]]  # offset of the last dark stations
+        tip_v[b] = (u0 + du * float(np.median(e.seed[max(e.n - 1 - span, 0) : e.n]))) * float(half_tip[b])
+    tip_u = np.minimum(np.maximum(tip_v / half_tip, -1.0), 1.0)
+    k0 = np.maximum(n - 1 - span, 0)
+    tail = _Ragged.of([len(edges[b].fluid) - k for b, k in zip(live.tolist(), k0.tolist())])
+    fine = np.concatenate([edges[b].fine[:, k:] for b, k in zip(live.tolist(), k0.tolist())], axis=1)
+    fluid = np.concatenate([edges[b].fluid[k:] for b, k in zip(live.tolist(), k0.tolist())])
+    contrast = np.concatenate([edges[b].contrast[k:] for b, k in zip(live.tolist(), k0.tolist())])
+    m = fine.shape[0]
+    pos = np.minimum(np.maximum(((tip_u - u0) / du)[:, None] + np.array([-1.0, 0.0, 1.0]), 0), m - 1)  # (B, 3)
+    j0 = np.minimum(pos.astype(int), m - 2)
+    f, j0 = (pos - j0).T[:, tail.row], j0.T[:, tail.row]
+    cols = np.arange(len(tail.row))
+    sampled = fine[j0, cols] * (1 - f) + fine[j0 + 1, cols] * f  # _sample_offsets
+    along = (fluid - (sampled[0] + sampled[1] + sampled[2]) / 3.0) / contrast
+    level = np.array([edges[b].level for b in live.tolist()])
+    tip_f = k0 + _tip_crossing_ragged(along, level, (n - 1 - k0).astype(float), tail)
+    tip_mm = plan.to_mm(lo + tip_f, tip_u)
     # pass 2: distance along the measured centre line, slant across the channel -> gaps
-    lines = []
-    for b, fit in zip(live, fits):
-        e = edges[b]
-        lines.append(plan.point_mm[e.lo : e.lo + e.n] + fit[0][:, None] * plan.normal[e.lo : e.lo + e.n])
-    s2 = _distance_from_tip_rows(lines, tip_mm, tip_fs)
-    v_c2, measured2, radius = offsets(live, s2, stretch)
-    done, values, valid = [], [], []
-    for i, b in enumerate(live):
-        e, n = edges[b], edges[b].n
-        stations, tip_f = np.arange(n), tips[i][0]
-        ms = measured[b] & measured2[i] & (stations <= tip_f)
-        if ms.sum() < 3:
-            continue
-        # where both edges show, the array must be about as wide as it is (noise is not)
-        both = e.ok_in & e.ok_out & (stations <= tip_f) & (s2[i] >= plan.r_tip_mm)
-        if both.sum() >= 10:
-            width = 2.0 * radius[i] * stretch[i]
-            fits_w = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
-            if fits_w[both].mean() < 0.5:
-                continue
-        half = plan.half_mm[e.lo : e.lo + n]
-        done.append((i, b, ms))
-        values.append(np.vstack([v_c2[i], half - v_c2[i] - radius[i] * stretch[i]]))
-        valid.append(ms)
-    if done:
-        smooth, _ = _smooth_valid_rows(values, valid, k_smooth)
-        for (i, b, ms), (centre, gap) in zip(done, smooth):
-            e = edges[b]
-            point, normal = plan.point_mm[e.lo : e.lo + e.n], plan.normal[e.lo : e.lo + e.n]
-            out[b] = _CentreLine(tips[i][0], tips[i][1], point + centre[:, None] * normal, gap, radius[i], ms)
+    point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
+    s = _distance_from_tip_ragged(point + centre[:, None] * normal, tip_mm, tip_f, rg)
+    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol)
+    before = local <= tip_f[row]
+    measured &= measured2 & before
+    good = rg.count(measured) >= 3
+    # where both edges show, the array must be about as wide as it is (noise is not)
+    both = ok_in & ok_out & before & (s >= plan.r_tip_mm)
+    width = 2.0 * radius * stretch
+    fits = np.abs(v_out - v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
+    n_both = rg.count(both)
+    good &= ~((n_both >= 10) & (rg.count(fits & both) / np.maximum(n_both, 1) < 0.5))
+    keep = np.flatnonzero(good)
+    if not len(keep):
+        return out
+    sub = np.isin(row, keep)
+    part = _Ragged.of(n[keep])
+    ok = measured[sub]
+    y = np.where(ok, np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), 0.0)
+    fit, _ = _smooth_valid_padded(np.moveaxis(part.pad(y, 0.0), 0, 1), part.pad(ok, False), part.n, k_smooth)
+    centre, gap = part.unpad(np.moveaxis(fit, 1, 0))
+    line = point[sub] + centre[:, None] * normal[sub]
+    radius = radius[sub]
+    for i, (b, s0, m_b) in enumerate(zip(keep.tolist(), part.start.tolist(), part.n.tolist())):
+        a = slice(s0, s0 + m_b)
+        out[int(live[b])] = _CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a])
     return out
+
+
+def _extrapolate_ragged(stations: np.ndarray, values: np.ndarray, sel: np.ndarray, span: float,
+                       rg: _Ragged) -> np.ndarray:
+    """:func:`_extrapolate` of each frame to its last station.
+
+    Parameters
+    ----------
+    stations, values : ndarray, shape (total,)
+        Station (float) and value (any unit) at each position of the frames (ragged ``rg``).
+    sel : ndarray, shape (total,), bool
+        The stations each frame's line is fitted to: measured, and within ``span`` of the
+        frame's last measured station (at least one per frame).
+    span : float
+        Length (stations) of the stretch fitted.
+    rg : _Ragged
+        The frames' layout.
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        Per frame, the line's value at its last station; the stretch's median when it holds
+        fewer than 3 stations or spans less than a third of ``span``.
+    """
+    count = rg.count(sel)
+    w = rg.pad(sel, False)
+    r, v = rg.pad(np.where(sel, stations, 0.0), 0.0), rg.pad(np.where(sel, values, 0.0), 0.0)
+    rm, vm = r.sum(axis=1) / count, v.sum(axis=1) / count
+    dr = np.where(w, r - rm[:, None], 0.0)
+    line = vm + (dr * (v - vm[:, None])).sum(axis=1) / (dr * dr).sum(axis=1) * ((rg.n - 1) - rm)
+    spread = np.where(w, r, -np.inf).max(axis=1) - np.where(w, r, np.inf).min(axis=1)
+    short = (count < 3) | (spread < span / 3)
+    return np.where(short, _row_quantiles(v, w, 0.5), line) if short.any() else line
+
+
+def _tip_crossing_ragged(cover_at: np.ndarray, level: np.ndarray, fallback: np.ndarray, rg: _Ragged) -> np.ndarray:
+    """:func:`_tip_crossing` of each frame's coverage profile.
+
+    Parameters
+    ----------
+    cover_at : ndarray, shape (total,)
+        Coverage (0 fluid, 1 array) along each frame's centre line (ragged ``rg``), basal first.
+    level : ndarray, shape (B,)
+        Per frame, the crossing level.
+    fallback : ndarray, shape (B,)
+        Per frame, the value where the profile never falls below its level.
+    rg : _Ragged
+        The frames' layout.
+
+    Returns
+    -------
+    ndarray, shape (B,)
+    """
+    above = cover_at >= level[rg.row]
+    falls = above.copy()
+    falls[:-1] &= ~above[1:]
+    k = rg.last(falls & (rg.local < rg.n[rg.row] - 1))
+    at = rg.start + np.maximum(k, 0)
+    a, b = cover_at[at], cover_at[np.minimum(at + 1, len(cover_at) - 1)]
+    t = np.minimum(np.maximum((a - level) / np.maximum(a - b, 1e-6), 0.0), 1.0)
+    return np.where(k >= 0, k + t, fallback)
 
 
 def _result_points(plan: MeasurePlan, e: _Edges, c: _CentreLine) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -2062,7 +2229,7 @@ def measure_frames_batch(
     The survey (stage 1) of the frames is computed stacked along a leading axis, a few dozen
     NumPy calls for the whole batch instead of per frame; the edges and the centre line
     (stages 2–3) run their station-wise helpers once on all frames' stations (see the notes
-    above :func:`_smooth_valid_rows`); the angles (stage 4) take the SPEC angles of all
+    above :class:`_Ragged`); the angles (stage 4) take the SPEC angles of all
     frames' points in one call and the rest per frame. The
     results equal :func:`measure_frame`'s frame by frame (the per-frame function stays the
     reference; ``tests/test_angles_batch.py`` compares them).
