@@ -764,6 +764,24 @@ def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
     return int(idx[breaks[0]] if len(breaks) else idx[-1])
 
 
+def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
+    """:func:`_array_run` of each row (frame) of ``dark``, shape (B, n): the last station of
+    the dark run that starts at the first dark probe station, bridging gaps up to ``max_gap``
+    stations (−1 where no probe station is dark).
+
+    The run ends at the first dark station from its start whose next dark station is more
+    than ``max_gap`` stations away, or that has none.
+    """
+    n_rows, n = dark.shape
+    at = np.arange(n)
+    in_probe = dark[:, probe]
+    start = np.where(in_probe.any(axis=1), probe[in_probe.argmax(axis=1)], n)
+    nxt = np.full((n_rows, n), n)  # the next dark station after each station (n: none)
+    nxt[:, :-1] = np.minimum.accumulate(np.where(dark, at, n)[:, :0:-1], axis=1)[:, ::-1]
+    ends = dark & (at >= start[:, None]) & ((nxt == n) | (nxt - at - 1 > max_gap))
+    return np.where(start < n, ends.argmax(axis=1), -1)
+
+
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
     """Where the coverage crosses ``level`` between offsets ``j`` and ``j + 1`` (linear).
 
@@ -1295,9 +1313,9 @@ def _fluid_levels(
     stations = np.arange(n)
     all_in, any_in = in_view.all(axis=1), in_view.any(axis=1)
     values = brightest.astype(np.float64)  # exact
-    for b in np.flatnonzero(any_in & ~all_in):
-        good = np.flatnonzero(in_view[b])
-        values[b] = np.interp(stations, good, brightest[b, good])
+    partial = (any_in & ~all_in)[:, None]
+    if partial.any():  # stations out of view interpolated from those in view
+        _fill_rows(values[:, None, :], in_view & partial, ~in_view & partial, stations.astype(float))
     block = max(1, min(int(block), n))
     n_blocks = n // block
     blocks = values[:, : n_blocks * block].reshape(n_rows, n_blocks, block)
@@ -1308,9 +1326,9 @@ def _fluid_levels(
     single = all_in if brightest.dtype == np.float32 else np.zeros(n_rows, bool)
     thr32 = (envelope.astype(np.float32) * np.float32(floor)).astype(np.float64)
     fluid_like = np.where(single[:, None], level >= thr32, level >= floor * envelope)
-    some, every = fluid_like.any(axis=1), fluid_like.all(axis=1)
-    for b in np.flatnonzero(some & ~every):
-        level[b] = np.interp(centres, centres[fluid_like[b]], level[b, fluid_like[b]])
+    partial = (fluid_like.any(axis=1) & ~fluid_like.all(axis=1))[:, None]
+    if partial.any():  # blocks filled by the array interpolated from the others
+        _fill_rows(level[:, None, :], fluid_like & partial, ~fluid_like & partial, centres)
     if n_blocks >= 3:
         a = np.concatenate([level[:, :1], level[:, :-1]], axis=1)
         c = np.concatenate([level[:, 1:], level[:, -1:]], axis=1)
@@ -1439,6 +1457,7 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
     rho2 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
     contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
     dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
+    tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step)).tolist()
     out: list[_Survey | FrameMeasurement] = []
     for b in range(n_rows):
         if not rho1[b] == rho1[b] or not rho2[b] == rho2[b]:
@@ -1448,7 +1467,7 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
         if c < cfg.min_contrast:
             out.append(_fail("array not in channel", contrast=c))
             continue
-        tip_c = _array_run(dark[b], probe, cfg.max_gap_mm / (sa * step))
+        tip_c = tips_c[b]
         if tip_c < 0:
             out.append(_fail("array not in channel", contrast=c))
         elif not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
@@ -1771,21 +1790,23 @@ def _smooth_valid_padded(y: np.ndarray, w: np.ndarray, lengths: np.ndarray, size
 
 
 def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
-    """Fill ``fit[b, r, j]`` where ``unknown[b, j]`` by linear interpolation over station
-    ``j`` between frame ``b``'s ``known`` stations (the end values beyond them), in place:
-    the per-frame ``np.interp`` of :func:`_smooth_valid` for all frames in one call per row.
+    """Fill ``fit[b, r, j]`` where ``unknown[b, j]`` by linear interpolation over ``x[j]``
+    between frame ``b``'s ``known`` stations (the end values beyond them), in place: the
+    per-frame ``np.interp(x[unknown[b]], x[known[b]], fit[b, r, known[b]])`` for all frames
+    (with any known station) in one call per ``r``.
 
-    The frames' stations are laid on one axis ``n + 2`` apart, each flanked by a point of
-    its first and of its last known value, so no query interpolates across frames; the
-    differences of the (integer) positions are exact, so each value equals its frame's own.
+    The frames' positions ``x`` (increasing, integers or halves) are laid on one axis, each
+    frame flanked by a point of its first and of its last known value, so no query
+    interpolates across frames; the frames are an integer distance apart, so the differences
+    of positions stay exact and each value equals its frame's own.
     """
     n_frames, n = known.shape
-    pos = x[None, :] + (n + 2.0) * np.arange(n_frames)[:, None]
+    pos = x[None, :] + (float(np.ceil(x[-1] - x[0])) + 3.0) * np.arange(n_frames)[:, None]
     rows = np.flatnonzero(known.any(axis=1))
     first = np.argmax(known[rows], axis=1)
     last = n - 1 - np.argmax(known[rows, ::-1], axis=1)
     kb, kj = np.nonzero(known)
-    xp = np.concatenate([pos[rows, 0] - 1.0, pos[kb, kj], pos[rows, 0] + n])
+    xp = np.concatenate([pos[rows, 0] - 1.0, pos[kb, kj], pos[rows, -1] + 1.0])
     order = np.argsort(xp, kind="stable")
     qb, qj = np.nonzero(unknown)
     xq = pos[qb, qj]
