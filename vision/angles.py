@@ -1716,8 +1716,8 @@ class _Ragged:
         return np.maximum.reduceat(np.where(mask, self.local, -1), self.start)
 
     def split(self, x: np.ndarray) -> list[np.ndarray]:
-        """``x`` (shape (..., total)) cut into its frames (views)."""
-        return [x[..., s : s + m] for s, m in zip(self.start.tolist(), self.n.tolist())]
+        """``x`` (shape (total, ...)) cut into its frames (views)."""
+        return [x[s : s + m] for s, m in zip(self.start.tolist(), self.n.tolist())]
 
 
 def _erode_ragged(mask: np.ndarray, rg: _Ragged, reach: int) -> np.ndarray:
@@ -2119,13 +2119,67 @@ def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, floa
 
 def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, dict[str, float]]]
                    ) -> list[FrameMeasurement]:
-    """:func:`_result` of several frames, the SPEC angles of all their points in one call
-    (:func:`_spiral_angle` works point by point, so each frame's equal its own)."""
-    prepared = [_result_points(plan, e, c) for e, c, _ in staged]
-    points = [p for _, _, p in prepared]
-    theta = np.split(_spiral_angle(np.concatenate(points), plan.angles), np.cumsum([len(p) for p in points])[:-1])
-    return [_result_from(plan, e, c, extras, keep, line, t)
-            for (e, c, extras), (keep, line, _), t in zip(staged, prepared, theta)]
+    """:func:`_result` of several frames, equal to it frame by frame: the frames' centre-line
+    points laid end to end (a :class:`_Ragged` batch), their SPEC angles in one call
+    (:func:`_spiral_angle` works point by point) and :func:`contact_angles`' rule, the depth
+    and the outline for all frames at once."""
+    cfg, step = plan.cfg, plan.step_mm
+    k = max(1, int(round(cfg.angle_step_mm / step)))
+    los = np.array([e.lo for e, _, _ in staged], dtype=np.intp)
+    tip_f = np.array([c.tip_f for _, c, _ in staged])
+    tip_mm = np.array([c.tip_mm for _, c, _ in staged])
+    n = np.array([e.n for e, _, _ in staged], dtype=np.intp)
+    line, gap, radius = (np.concatenate([getattr(c, name) for _, c, _ in staged]) for name in ("line", "gap", "radius"))
+    # the kept stations (_result_points): every k-th from the last one at or before the tip
+    top = np.minimum(np.floor(tip_f).astype(np.intp), n - 1)
+    kept = _Ragged.of(top // k + 1)
+    keep = top[kept.row] - k * kept.local  # station in its frame
+    at = (np.cumsum(n) - n)[kept.row] + keep  # position in line, gap, radius
+    # the centre line: the tip, then the kept stations' points
+    cl = _Ragged.of(kept.n + 1)
+    inner = cl.start[kept.row] + 1 + kept.local  # positions of the kept points in cl
+    points = np.empty((len(cl.row), 2))
+    points[cl.start], points[inner] = tip_mm, line[at]
+    gaps = np.empty(len(cl.row))
+    gaps[cl.start], gaps[inner] = gap[at[kept.start]], gap[at]
+    theta = _spiral_angle(points, plan.angles)
+    # contact_angles: the contact run from the tip ends where the gap first exceeds the tolerance
+    touching = gaps <= cfg.contact_tol_mm
+    away = np.where(~touching, cl.local, cl.n[cl.row])
+    out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
+    i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
+    i0 = cl.start + np.maximum(i_last, 0)
+    i1 = cl.start + np.minimum(i_last + 1, cl.n - 1)
+    g0, g1 = gaps[i0], gaps[np.minimum(i0 + 1, len(gaps) - 1)]
+    frac = np.where((out_at < cl.n) & (g1 != g0),
+                    np.minimum(np.maximum((cfg.contact_tol_mm - g0) / (g1 - g0), 0.0), 1.0), 0.0)
+    contact = touching[cl.start]
+    theta_tip = theta[cl.start]
+    theta_bot = np.where(contact, theta[i0] + frac * (theta[i1] - theta[i0]), theta_tip)
+    bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
+    seg = np.diff(points, axis=0)
+    seg = np.hypot(seg[:, 0], seg[:, 1])
+    seg[cl.start[1:] - 1] = 0.0  # between frames
+    depth = np.add.reduceat(np.append(seg, 0.0), cl.start)
+    entry = los + tip_f < plan.i_start  # tip in the entry channel: theta = phi (SPEC §2), no contact
+    theta_bot = np.where(entry, theta_tip, theta_bot)
+    bot = np.where(entry[:, None], tip_mm, bot)
+    depth = np.where(entry, -(plan.p_mm[plan.i_start] - plan.p_mm[los] - tip_f * step), depth)
+    # the outline: the tip, one side tipwards to base, the other back
+    side = radius[at][:, None] * plan.normal[los[kept.row] + keep]
+    ol = _Ragged.of(2 * kept.n + 1)
+    outline = np.empty((len(ol.row), 2))
+    outline[ol.start] = tip_mm
+    outline[ol.start[kept.row] + 1 + kept.local] = line[at] - side
+    outline[ol.start[kept.row] + 2 * kept.n[kept.row] - kept.local] = line[at] + side
+    results = []
+    rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
+               bot, depth.tolist(), entry.tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry in rows:
+        extras["depth_mm"] = depth_b
+        results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
+                                        cl_b, outline_b, gaps_b, extras))
+    return results
 
 
 def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
