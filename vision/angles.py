@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Protocol
 
 import cv2
@@ -782,6 +783,13 @@ def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarr
     return np.where(start < n, ends.argmax(axis=1), -1)
 
 
+def _at(a: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """``a[i, j]`` of a 2-D array (indices broadcast together), by one flat ``np.take``: the
+    same values, several times cheaper than NumPy's two-array fancy indexing."""
+    a = np.ascontiguousarray(a)
+    return np.take(a.reshape(-1), i * a.shape[1] + j)
+
+
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
     """Where the coverage crosses ``level`` between offsets ``j`` and ``j + 1`` (linear).
 
@@ -802,7 +810,7 @@ def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) 
     ndarray, shape (k,)
         Fractional offset index.
     """
-    c1, c2 = cover[j, cols], cover[j + 1, cols]
+    c1, c2 = _at(cover, j, cols), _at(cover, j + 1, cols)
     d = c2 - c1
     t = (level - c1) / np.where(np.abs(d) < 1e-6, 1e-6, d)
     return j + np.minimum(np.maximum(t, 0.0), 1.0)
@@ -859,7 +867,7 @@ def _sample(cover: np.ndarray, pos: np.ndarray, cols: np.ndarray) -> np.ndarray:
     pos = np.minimum(np.maximum(pos, 0.0), m - 1.001)
     j = pos.astype(np.intp)
     f = pos - j
-    return cover[j, cols] * (1 - f) + cover[j + 1, cols] * f
+    return _at(cover, j, cols) * (1 - f) + _at(cover, j + 1, cols) * f
 
 
 def _plateaus(
@@ -923,11 +931,11 @@ def _relevel(cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, level: np.n
     m, n = cover.shape[0], len(edge)
     cols = np.arange(n)
     j0 = np.minimum(np.maximum(np.floor(np.where(valid, edge, 0.0)).astype(np.intp) - 4, 0), max(m - 10, 0))
-    window = cover[j0[None, :] + np.arange(min(10, m))[:, None], cols]
+    window = _at(cover, j0[None, :] + np.arange(min(10, m))[:, None], cols)
     rising = (window[:-1] < level) & (window[1:] >= level)
     k = rising.argmax(axis=0)
     found = valid & rising.any(axis=0)
-    a, b = window[k, cols], window[k + 1, cols]
+    a, b = _at(window, k, cols), _at(window, k + 1, cols)
     t = np.minimum(np.maximum((level - a) / np.where(np.abs(b - a) < 1e-6, 1e-6, b - a), 0.0), 1.0)
     return np.where(found, j0 + k + t, edge)
 
@@ -1697,15 +1705,26 @@ class _Ragged:
         row = np.repeat(np.arange(len(n)), n)
         return cls(n, start, row, np.arange(int(n.sum())) - start[row])
 
+    @cached_property
+    def width(self) -> int:
+        """The longest frame (stations)."""
+        return int(self.n.max())
+
+    @cached_property
+    def flat(self) -> np.ndarray:
+        """Each position's index in the frames padded to :attr:`width` and flattened."""
+        return self.row * self.width + self.local
+
     def pad(self, x: np.ndarray, fill: Any) -> np.ndarray:
         """``x`` (shape (..., total)) as (..., B, max n), each frame left-aligned, ``fill`` after."""
-        out = np.full(x.shape[:-1] + (len(self.n), int(self.n.max())), fill, dtype=x.dtype)
-        out[..., self.row, self.local] = x
-        return out
+        out = np.full(x.shape[:-1] + (len(self.n) * self.width,), fill, dtype=x.dtype)
+        out[..., self.flat] = x
+        return out.reshape(x.shape[:-1] + (len(self.n), self.width))
 
     def unpad(self, x: np.ndarray) -> np.ndarray:
         """The inverse of :meth:`pad`: (..., B, max n) to (..., total)."""
-        return x[..., self.row, self.local]
+        x = np.ascontiguousarray(x)
+        return np.take(x.reshape(x.shape[:-2] + (-1,)), self.flat, axis=-1)
 
     def count(self, mask: np.ndarray) -> np.ndarray:
         """Per frame, how many of its positions ``mask`` holds at."""
@@ -1833,17 +1852,19 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     fluid = _interp_ragged(station, strip.row, sa * np.arange(fluid_c.shape[1]), fluid_c)
     contrast = fluid * (1.0 - np.array([sv.rho for sv in surveys])[strip.row])
     blurred = np.concatenate([cv2.blur(f, (3, 1)) for f in fines], axis=1)
-    cover = blurred.astype(np.float32) * (-1.0 / contrast) + fluid / contrast
+    scale, shift = -1.0 / contrast, fluid / contrast  # coverage = blurred * scale + shift
     seed_c = np.stack([sv.seed_c for sv in surveys])
-    seed = np.minimum(sa * seed_c[strip.row, station // sa], len(plan.u) - 1)
-    darkness = np.where(plan.in_view[station], cover[seed, np.arange(len(station))], 0.0)
+    seed = np.minimum(sa * _at(seed_c, strip.row, station // sa), len(plan.u) - 1)
+    at_seed = _at(blurred, seed, np.arange(len(station))).astype(np.float32) * scale + shift
+    darkness = np.where(np.take(plan.in_view, station), at_seed, 0.0)
     first_n = np.minimum(tips + sa, hi - 1) - lo + 1  # stations where the array's dark end is sought
     last_dark = strip.last((darkness >= cfg.dark_level) & (strip.local < first_n[strip.row]))
     # the stations that hold the array
     arr = _Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
     take = strip.start[arr.row] + arr.local
-    cover, seed_a, dark_a = cover[:, take], seed[take], darkness[take]
-    half = plan.half_mm[lo[arr.row] + arr.local]
+    cover = np.take(blurred, take, axis=1).astype(np.float32) * np.take(scale, take) + np.take(shift, take)
+    seed_a, dark_a = np.take(seed, take), np.take(darkness, take)
+    half = np.take(plan.half_mm, lo[arr.row] + arr.local)
     px = du * half * ppm  # px per offset index at each station
     wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
     # the edges (_edges)
@@ -1981,7 +2002,7 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     j0 = np.minimum(pos.astype(int), m - 2)
     f, j0 = (pos - j0).T[:, tail.row], j0.T[:, tail.row]
     cols = np.arange(len(tail.row))
-    sampled = fine[j0, cols] * (1 - f) + fine[j0 + 1, cols] * f  # _sample_offsets
+    sampled = _at(fine, j0, cols) * (1 - f) + _at(fine, j0 + 1, cols) * f  # _sample_offsets
     along = (fluid - (sampled[0] + sampled[1] + sampled[2]) / 3.0) / contrast
     level = np.array([edges[b].level for b in live.tolist()])
     tip_f = k0 + _tip_crossing_ragged(along, level, (n - 1 - k0).astype(float), tail)
