@@ -1435,11 +1435,10 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
         Per frame, what :func:`_survey` returns for it.
     """
     cfg, step, sa = plan.cfg, plan.step_mm, max(1, int(plan.cfg.coarse_stride))
-    coarse = np.stack([
-        cv2.blur(cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_REPLICATE).astype(np.float32, copy=False), (3, 3))
-        for img in imgs
-    ])
+    coarse = np.empty((len(imgs),) + plan.coarse_x.shape, np.float32)
+    for img, out in zip(imgs, coarse):  # each frame's blurred coarse strip, written in place
+        strip = cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        cv2.blur(strip.astype(np.float32, copy=False), (3, 3), dst=out)
     n_rows = len(imgs)
     low = coarse + plan.coarse_penalty
     seed_c = low.argmin(axis=1)
@@ -1820,18 +1819,26 @@ def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.nd
     of positions stay exact and each value equals its frame's own.
     """
     n_frames, n = known.shape
-    pos = x[None, :] + (float(np.ceil(x[-1] - x[0])) + 3.0) * np.arange(n_frames)[:, None]
-    rows = np.flatnonzero(known.any(axis=1))
-    first = np.argmax(known[rows], axis=1)
-    last = n - 1 - np.argmax(known[rows, ::-1], axis=1)
-    kb, kj = np.nonzero(known)
-    xp = np.concatenate([pos[rows, 0] - 1.0, pos[kb, kj], pos[rows, -1] + 1.0])
-    order = np.argsort(xp, kind="stable")
-    qb, qj = np.nonzero(unknown)
-    xq = pos[qb, qj]
+    pos = np.empty((n_frames, n + 2))  # each frame's positions between its two flanks
+    pos[:, 1:-1] = x
+    pos[:, 0], pos[:, -1] = x[0] - 1.0, x[-1] + 1.0
+    pos += (float(np.ceil(x[-1] - x[0])) + 5.0) * np.arange(n_frames)[:, None]
+    has = known.any(axis=1)
+    use = np.zeros((n_frames, n + 2), dtype=bool)
+    use[:, 1:-1], use[:, 0], use[:, -1] = known, has, has
+    first = np.argmax(known, axis=1)
+    last = n - 1 - np.argmax(known[:, ::-1], axis=1)
+    xp = pos[use]  # increasing: frame by frame, each in order
+    at = np.flatnonzero(unknown.ravel())
+    xq = np.take(pos[:, 1:-1].ravel(), at)
+    rows = np.arange(n_frames)
+    values = np.empty((n_frames, n + 2))
     for r in range(fit.shape[1]):
-        fp = np.concatenate([fit[rows, r, first], fit[kb, r, kj], fit[rows, r, last]])
-        fit[qb, r, qj] = np.interp(xq, xp[order], fp[order])
+        values[:, 1:-1] = fit[:, r]
+        values[:, 0], values[:, -1] = fit[rows, r, first], fit[rows, r, last]
+        filled = fit[:, r].copy()
+        filled.ravel()[at] = np.interp(xq, xp, values[use])
+        fit[:, r] = filled
 
 
 def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Survey]) -> list[_Edges]:
