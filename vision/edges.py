@@ -39,6 +39,7 @@ __all__ = [
     "edge_segments",
     "remove_short_segments",
     "subpixel_edges",
+    "splat_vectors",
     "orientation_field",
     "auto_sigma",
 ]
@@ -138,11 +139,11 @@ def as_float_gray(image: np.ndarray) -> np.ndarray:
     elif np.issubdtype(image.dtype, np.integer):
         out = np.clip(image, 0, 255).astype(np.float32)
     else:
-        out = np.nan_to_num(image.astype(np.float32))
+        out = np.nan_to_num(image.astype(np.float32), copy=False)  # our own copy, changed in place
         finite_max = float(out.max()) if out.size else 0.0
         if finite_max <= 1.0:
-            out = out * 255.0
-        out = np.clip(out, 0.0, 255.0)
+            out *= 255.0
+        np.clip(out, 0.0, 255.0, out=out)
     if out.ndim == 3:
         if out.shape[2] == 4:
             out = out[:, :, :3]
@@ -447,13 +448,48 @@ def subpixel_edges(edge_map: EdgeMap) -> tuple[np.ndarray, np.ndarray]:
     return points, np.stack([nx, ny], axis=1)
 
 
+def splat_vectors(points: np.ndarray, vectors: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear splat of k-vectors at sub-pixel points into a k-channel image.
+
+    Each point adds its vector to the four pixels around it, weighted by the bilinear
+    weights of its position; points are clipped into the image first.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2)
+        Points ``(x, y)`` (px).
+    vectors : ndarray, shape (n, k)
+        Values splatted at the points (any unit; the image holds their sum per pixel).
+    shape : tuple of int
+        ``(h, w)`` of the image (px).
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w, k)
+        Sums accumulated in float64, rounded once.
+    """
+    h, w = shape
+    out = np.zeros((h, w, vectors.shape[1]), np.float32)
+    if len(points):
+        x = np.clip(points[:, 0], 0.0, w - 1.0001)
+        y = np.clip(points[:, 1], 0.0, h - 1.0001)
+        x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
+        fx, fy = x - x0, y - y0
+        base = y0 * w + x0
+        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
+        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+        for k in range(vectors.shape[1]):
+            out[..., k] = np.bincount(idx, wgt * np.tile(vectors[:, k], 4), minlength=h * w).reshape(h, w)
+    return out
+
+
 def orientation_field(points: np.ndarray, normals: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Splat edge points into a doubled-angle orientation image.
 
     Each point adds ``exp(2i·alpha)`` (alpha the angle of its normal) with bilinear weights at
-    its sub-pixel position. Doubling the angle makes both polarities of an edge (the two sides
-    of a thin line) agree, and makes randomly oriented clutter and noise average out when the
-    field is smoothed or downsampled.
+    its sub-pixel position (:func:`splat_vectors`). Doubling the angle makes both polarities
+    of an edge (the two sides of a thin line) agree, and makes randomly oriented clutter and
+    noise average out when the field is smoothed or downsampled.
 
     Parameters
     ----------
@@ -469,22 +505,9 @@ def orientation_field(points: np.ndarray, normals: np.ndarray, shape: tuple[int,
     ndarray of float32, shape (h, w, 2)
         Real and imaginary parts of the field (edge length per px).
     """
-    h, w = shape
-    field = np.zeros((2, h * w), np.float64)
-    if len(points):
-        c2 = normals[:, 0] ** 2 - normals[:, 1] ** 2
-        s2 = 2.0 * normals[:, 0] * normals[:, 1]
-        x = np.clip(points[:, 0], 0.0, w - 1.0001)
-        y = np.clip(points[:, 1], 0.0, h - 1.0001)
-        x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
-        fx, fy = x - x0, y - y0
-        base = y0 * w + x0
-        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
-        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-        field[0] = np.bincount(idx, wgt * np.tile(c2, 4), minlength=h * w)
-        field[1] = np.bincount(idx, wgt * np.tile(s2, 4), minlength=h * w)
-    return np.ascontiguousarray(field.T.reshape(h, w, 2), dtype=np.float32)
-
+    normals = np.asarray(normals).reshape(-1, 2)
+    doubled = np.stack([normals[:, 0] ** 2 - normals[:, 1] ** 2, 2.0 * normals[:, 0] * normals[:, 1]], axis=1)
+    return splat_vectors(np.asarray(points).reshape(-1, 2), doubled, shape)
 
 
 def auto_sigma(
