@@ -36,12 +36,14 @@ __all__ = [
     "noise_gradient",
     "canny_edges",
     "detect_edges",
+    "edges_from_gradients",
     "edge_segments",
     "remove_short_segments",
     "subpixel_edges",
     "splat_vectors",
     "orientation_field",
     "auto_sigma",
+    "sigma_from_gradients",
 ]
 
 # Fixed-point factor of the 16-bit derivatives handed to cv2.Canny: 1/64 grey level per px.
@@ -139,9 +141,11 @@ def as_float_gray(image: np.ndarray) -> np.ndarray:
     elif np.issubdtype(image.dtype, np.integer):
         out = np.clip(image, 0, 255).astype(np.float32)
     else:
-        out = np.nan_to_num(image.astype(np.float32), copy=False)  # our own copy, changed in place
-        finite_max = float(out.max()) if out.size else 0.0
-        if finite_max <= 1.0:
+        out = np.array(image, dtype=np.float32, order="C")  # our own copy, changed in place
+        if out.size:
+            cv2.patchNaNs(out.reshape(-1, 1), 0.0)  # NaN -> 0 in place; +-inf go to 255 and 0 in the clip
+        largest = float(out.max()) if out.size else 0.0
+        if largest <= 1.0:
             out *= 255.0
         np.clip(out, 0.0, 255.0, out=out)
     if out.ndim == 3:
@@ -317,6 +321,35 @@ def detect_edges(
     EdgeMap
     """
     gx, gy = gradients(gray, sigma_px)
+    return edges_from_gradients(gx, gy, sigma_px=sigma_px, low=low, high=high, min_length_px=min_length_px)
+
+
+def edges_from_gradients(
+    gx: np.ndarray,
+    gy: np.ndarray,
+    *,
+    sigma_px: float,
+    low: float | None = None,
+    high: float | None = None,
+    min_length_px: int = 0,
+) -> EdgeMap:
+    """:func:`detect_edges` on derivatives already computed with :func:`gradients`.
+
+    Parameters
+    ----------
+    gx, gy : ndarray of float32, shape (h, w)
+        ``gradients(gray, sigma_px)`` (grey levels per px).
+    sigma_px : float
+        The smoothing (px) they were computed with (recorded in the result).
+    low, high : float, optional
+        Hysteresis thresholds (grey levels per px); automatic when missing.
+    min_length_px : int
+        Drop 8-connected edge segments of fewer pixels than this (px); 0 keeps all.
+
+    Returns
+    -------
+    EdgeMap
+    """
     if high is None:
         high = auto_thresholds(cv2.magnitude(gx, gy))[1]
     if low is None:
@@ -333,8 +366,14 @@ def detect_edges(
 
 
 def _components(edges: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """8-connected components of an edge mask: count (background included), int32 labels
+    and ``cv2`` stats.
+
+    Grana's algorithm gives the same labels as OpenCV's default and, single-threaded, takes
+    a third to half of its time here.
+    """
     mask = (np.asarray(edges) > 0).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
     return n, labels, stats
 
 
@@ -355,7 +394,7 @@ def remove_short_segments(edges: np.ndarray, *, min_length_px: int) -> np.ndarra
     n, labels, stats = _components(edges)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_length_px
     keep[0] = False
-    return keep[labels]
+    return np.take(keep, labels)
 
 
 def edge_segments(edges: np.ndarray, *, min_length_px: int = 10) -> list[np.ndarray]:
@@ -539,5 +578,24 @@ def auto_sigma(
         Sigma (px).
     """
     gx, gy = gradients(gray, 1.0)
+    return sigma_from_gradients(gx, gy, target_noise_gradient=target_noise_gradient, sigma_range=sigma_range)
+
+
+def sigma_from_gradients(
+    gx: np.ndarray,
+    gy: np.ndarray,
+    *,
+    target_noise_gradient: float = 0.5,
+    sigma_range: tuple[float, float] = (1.0, 2.5),
+) -> float:
+    """:func:`auto_sigma` from the derivatives ``gradients(gray, 1.0)`` (grey levels per px).
+
+    Lets a caller that goes on to run Canny with a 1 px Gaussian (clean frames) reuse them.
+
+    Returns
+    -------
+    float
+        Sigma (px).
+    """
     noise = noise_gradient(cv2.magnitude(gx, gy))
     return float(np.clip(np.sqrt(noise / target_noise_gradient), *sigma_range))

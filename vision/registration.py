@@ -56,9 +56,11 @@ import numpy as np
 from .edges import (
     EdgeMap,
     as_float_gray,
-    auto_sigma,
     detect_edges,
+    edges_from_gradients,
+    gradients,
     orientation_field,
+    sigma_from_gradients,
     splat_vectors,
     subpixel_edges,
     to_gray,
@@ -516,9 +518,24 @@ class _Edges:
     signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
 
 
-def _prepare_edges(gray: np.ndarray, sigma_px: float, cfg: RegistrationConfig, levels: int) -> _Edges:
-    """Canny, sub-pixel points and the orientation fields of one (merged) frame."""
-    em = detect_edges(gray, sigma_px=sigma_px, min_length_px=cfg.min_segment_px)
+def _gradients_for_canny(gray: np.ndarray, sigma_px: float | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Derivatives (grey levels per px) of ``gray`` smoothed for Canny, and the smoothing (px).
+
+    ``sigma_px`` None picks the smoothing from the noise (:func:`vision.edges.auto_sigma`);
+    the 1 px derivatives that takes are reused when it keeps 1 px (clean frames) rather than
+    computed again.
+    """
+    if sigma_px is None:
+        gx, gy = gradients(gray, 1.0)
+        sigma_px = sigma_from_gradients(gx, gy)
+        if sigma_px == 1.0:
+            return gx, gy, sigma_px
+    gx, gy = gradients(gray, sigma_px)
+    return gx, gy, float(sigma_px)
+
+
+def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
+    """Sub-pixel points and the orientation fields of the Canny edges of one (merged) frame."""
     pts, nrm = subpixel_edges(em)
     fld = orientation_field(pts, nrm, em.shape)
     pyramid = [cv2.GaussianBlur(fld, (0, 0), 0.7)]
@@ -1046,9 +1063,13 @@ class WallFit:
 
 def _edge_layers(em: EdgeMap) -> np.ndarray:
     """(h, w, 2) float32 unit gradient directions on edge pixels, zero elsewhere."""
-    mag = cv2.magnitude(em.gx, em.gy)
-    scale = np.where(em.mask, 1.0 / np.maximum(mag, 1e-12), 0.0).astype(np.float32)
-    return np.dstack([em.gx * scale, em.gy * scale])
+    idx = np.flatnonzero(em.mask)
+    inv = np.float32(1.0) / np.maximum(cv2.magnitude(em.gx, em.gy).ravel()[idx], np.float32(1e-12))
+    layers = np.zeros(em.shape + (2,), np.float32)
+    flat = layers.reshape(-1, 2)  # a view: edge pixels are written in place
+    flat[idx, 0] = em.gx.ravel()[idx] * inv
+    flat[idx, 1] = em.gy.ravel()[idx] * inv
+    return layers
 
 
 def _edge_distances(
@@ -1291,9 +1312,9 @@ def register(
     frames = _frame_list(gray_frames)
     gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
-    sigma = cfg.edge_sigma_px if cfg.edge_sigma_px is not None else auto_sigma(gray)
+    gx, gy, sigma = _gradients_for_canny(gray, cfg.edge_sigma_px)
     levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
-    edges = _prepare_edges(gray, sigma, cfg, levels)
+    edges = _prepare_edges(edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px), levels)
     if len(edges.points) < 50:
         raise RegistrationError(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
