@@ -694,12 +694,13 @@ def _shrunk_field(pyramid: list[np.ndarray], factor: float) -> tuple[np.ndarray,
 
 
 def _shelf_layout(shapes: list[tuple[int, int]], gap: int, width: int) -> tuple[list[tuple[int, int]], tuple[int, int]]:
-    """Blocks of ``shapes`` ((rows, cols), px) packed on shelves at most ``width`` px wide.
+    """Blocks of ``shapes`` ((rows, cols), px) packed in order on shelves ``width`` px wide.
 
-    Every block has at least ``gap`` px of empty space before it in both directions (to the
-    previous block, shelf or the mosaic's start). Returns the (row, col) of each block's
-    first pixel and the (rows, cols) of the packed area (up to the last block's end, no
-    trailing gap).
+    A block starts a new shelf when it would end beyond ``width`` (a block wider than that
+    gets a shelf of its own). Every block has ``gap`` px of empty space before it in both
+    directions (to the previous block, the previous shelf or the mosaic's start). Returns
+    the (row, col) of each block's first pixel and the (rows, cols) of the packed area (up
+    to the last block's end, no trailing gap).
     """
     offsets = []
     x, y, shelf, right = gap, gap, 0, 0
@@ -716,8 +717,9 @@ def _shelf_layout(shapes: list[tuple[int, int]], gap: int, width: int) -> tuple[
 def _mosaic_layout(shapes: list[tuple[int, int]], gap: int) -> tuple[list[tuple[int, int]], tuple[int, int]]:
     """Shelf layout of ``shapes`` (see :func:`_shelf_layout`) whose DFT is cheapest.
 
-    Tries shelf widths from the widest block to about twice the square root of the packed
-    area and keeps the one with the smallest DFT (``cv2.getOptimalDFTSize`` of each side).
+    Tries shelf widths in 32 px steps from the widest block (plus ``gap``) to about twice
+    the square root of the packed area and keeps the one with the smallest DFT
+    (``cv2.getOptimalDFTSize`` of each side).
     Returns the blocks' (row, col) offsets and the DFT size (rows, cols), which covers the
     packed area.
     """
@@ -754,11 +756,10 @@ def _circular_ccorr(image: np.ndarray, templates: np.ndarray) -> np.ndarray:
     """
     rows, cols = image.shape[:2]
     spectrum = cv2.dft(np.ascontiguousarray(image), flags=cv2.DFT_COMPLEX_OUTPUT)
-    size = templates.shape[1]
     padded = np.zeros((rows, cols, 2), np.float32)
     out = None
     for t in templates:
-        padded[:size, : t.shape[1]] = t
+        padded[: t.shape[0], : t.shape[1]] = t
         t_spectrum = cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT)
         corr = cv2.dft(cv2.mulSpectrums(spectrum, t_spectrum, 0, conjB=True), flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
         out = corr[..., 0] if out is None else np.maximum(out, corr[..., 0])
@@ -776,9 +777,10 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     those peaks by one matrix product of image patches with the template stack.
 
     The shrunk fields of all scales are laid out in one mosaic, a template size of zeros
-    around each, so that one DFT correlation per mirror gives every scale's detector: the
-    values are those of a separate ``cv2.matchTemplate`` on each field zero-padded by a
-    template size (up to float rounding), at a fraction of the cost.
+    around each, so that one DFT of the mosaic and, per mirror, one product with the
+    template's spectrum and one inverse DFT give every scale's detector: the values are those
+    of a separate ``cv2.matchTemplate`` on each field zero-padded by a template size (up to
+    float rounding), at a fraction of the cost.
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
