@@ -36,11 +36,14 @@ __all__ = [
     "noise_gradient",
     "canny_edges",
     "detect_edges",
+    "edges_from_gradients",
     "edge_segments",
     "remove_short_segments",
     "subpixel_edges",
+    "splat_vectors",
     "orientation_field",
     "auto_sigma",
+    "sigma_from_gradients",
 ]
 
 # Fixed-point factor of the 16-bit derivatives handed to cv2.Canny: 1/64 grey level per px.
@@ -138,11 +141,13 @@ def as_float_gray(image: np.ndarray) -> np.ndarray:
     elif np.issubdtype(image.dtype, np.integer):
         out = np.clip(image, 0, 255).astype(np.float32)
     else:
-        out = np.nan_to_num(image.astype(np.float32))
-        finite_max = float(out.max()) if out.size else 0.0
-        if finite_max <= 1.0:
-            out = out * 255.0
-        out = np.clip(out, 0.0, 255.0)
+        out = np.array(image, dtype=np.float32, order="C")  # our own copy, changed in place
+        if out.size:
+            cv2.patchNaNs(out.reshape(-1, 1), 0.0)  # NaN -> 0 in place; +-inf go to 255 and 0 in the clip
+        largest = float(out.max()) if out.size else 0.0
+        if largest <= 1.0:
+            out *= 255.0
+        np.clip(out, 0.0, 255.0, out=out)
     if out.ndim == 3:
         if out.shape[2] == 4:
             out = out[:, :, :3]
@@ -316,6 +321,35 @@ def detect_edges(
     EdgeMap
     """
     gx, gy = gradients(gray, sigma_px)
+    return edges_from_gradients(gx, gy, sigma_px=sigma_px, low=low, high=high, min_length_px=min_length_px)
+
+
+def edges_from_gradients(
+    gx: np.ndarray,
+    gy: np.ndarray,
+    *,
+    sigma_px: float,
+    low: float | None = None,
+    high: float | None = None,
+    min_length_px: int = 0,
+) -> EdgeMap:
+    """:func:`detect_edges` on derivatives already computed with :func:`gradients`.
+
+    Parameters
+    ----------
+    gx, gy : ndarray of float32, shape (h, w)
+        ``gradients(gray, sigma_px)`` (grey levels per px).
+    sigma_px : float
+        The smoothing (px) they were computed with (recorded in the result).
+    low, high : float, optional
+        Hysteresis thresholds (grey levels per px); automatic when missing.
+    min_length_px : int
+        Drop 8-connected edge segments of fewer pixels than this (px); 0 keeps all.
+
+    Returns
+    -------
+    EdgeMap
+    """
     if high is None:
         high = auto_thresholds(cv2.magnitude(gx, gy))[1]
     if low is None:
@@ -332,8 +366,14 @@ def detect_edges(
 
 
 def _components(edges: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """8-connected components of an edge mask: count (background included), int32 labels
+    and ``cv2`` stats.
+
+    Grana's algorithm gives the same labels as OpenCV's default and, single-threaded, takes
+    a third to half of its time here.
+    """
     mask = (np.asarray(edges) > 0).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_GRANA)
     return n, labels, stats
 
 
@@ -354,7 +394,7 @@ def remove_short_segments(edges: np.ndarray, *, min_length_px: int) -> np.ndarra
     n, labels, stats = _components(edges)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_length_px
     keep[0] = False
-    return keep[labels]
+    return np.take(keep, labels)
 
 
 def edge_segments(edges: np.ndarray, *, min_length_px: int = 10) -> list[np.ndarray]:
@@ -447,13 +487,48 @@ def subpixel_edges(edge_map: EdgeMap) -> tuple[np.ndarray, np.ndarray]:
     return points, np.stack([nx, ny], axis=1)
 
 
+def splat_vectors(points: np.ndarray, vectors: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear splat of k-vectors at sub-pixel points into a k-channel image.
+
+    Each point adds its vector to the four pixels around it, weighted by the bilinear
+    weights of its position; points are clipped into the image first.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2)
+        Points ``(x, y)`` (px).
+    vectors : ndarray, shape (n, k)
+        Values splatted at the points (any unit; the image holds their sum per pixel).
+    shape : tuple of int
+        ``(h, w)`` of the image (px).
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w, k)
+        Sums accumulated in float64, rounded once.
+    """
+    h, w = shape
+    out = np.zeros((h, w, vectors.shape[1]), np.float32)
+    if len(points):
+        x = np.clip(points[:, 0], 0.0, w - 1.0001)
+        y = np.clip(points[:, 1], 0.0, h - 1.0001)
+        x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
+        fx, fy = x - x0, y - y0
+        base = y0 * w + x0
+        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
+        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
+        for k in range(vectors.shape[1]):
+            out[..., k] = np.bincount(idx, wgt * np.tile(vectors[:, k], 4), minlength=h * w).reshape(h, w)
+    return out
+
+
 def orientation_field(points: np.ndarray, normals: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Splat edge points into a doubled-angle orientation image.
 
     Each point adds ``exp(2i·alpha)`` (alpha the angle of its normal) with bilinear weights at
-    its sub-pixel position. Doubling the angle makes both polarities of an edge (the two sides
-    of a thin line) agree, and makes randomly oriented clutter and noise average out when the
-    field is smoothed or downsampled.
+    its sub-pixel position (:func:`splat_vectors`). Doubling the angle makes both polarities
+    of an edge (the two sides of a thin line) agree, and makes randomly oriented clutter and
+    noise average out when the field is smoothed or downsampled.
 
     Parameters
     ----------
@@ -469,22 +544,9 @@ def orientation_field(points: np.ndarray, normals: np.ndarray, shape: tuple[int,
     ndarray of float32, shape (h, w, 2)
         Real and imaginary parts of the field (edge length per px).
     """
-    h, w = shape
-    field = np.zeros((2, h * w), np.float64)
-    if len(points):
-        c2 = normals[:, 0] ** 2 - normals[:, 1] ** 2
-        s2 = 2.0 * normals[:, 0] * normals[:, 1]
-        x = np.clip(points[:, 0], 0.0, w - 1.0001)
-        y = np.clip(points[:, 1], 0.0, h - 1.0001)
-        x0, y0 = np.floor(x).astype(np.intp), np.floor(y).astype(np.intp)
-        fx, fy = x - x0, y - y0
-        base = y0 * w + x0
-        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
-        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-        field[0] = np.bincount(idx, wgt * np.tile(c2, 4), minlength=h * w)
-        field[1] = np.bincount(idx, wgt * np.tile(s2, 4), minlength=h * w)
-    return np.ascontiguousarray(field.T.reshape(h, w, 2), dtype=np.float32)
-
+    normals = np.asarray(normals).reshape(-1, 2)
+    doubled = np.stack([normals[:, 0] ** 2 - normals[:, 1] ** 2, 2.0 * normals[:, 0] * normals[:, 1]], axis=1)
+    return splat_vectors(np.asarray(points).reshape(-1, 2), doubled, shape)
 
 
 def auto_sigma(
@@ -516,5 +578,24 @@ def auto_sigma(
         Sigma (px).
     """
     gx, gy = gradients(gray, 1.0)
+    return sigma_from_gradients(gx, gy, target_noise_gradient=target_noise_gradient, sigma_range=sigma_range)
+
+
+def sigma_from_gradients(
+    gx: np.ndarray,
+    gy: np.ndarray,
+    *,
+    target_noise_gradient: float = 0.5,
+    sigma_range: tuple[float, float] = (1.0, 2.5),
+) -> float:
+    """:func:`auto_sigma` from the derivatives ``gradients(gray, 1.0)`` (grey levels per px).
+
+    Lets a caller that goes on to run Canny with a 1 px Gaussian (clean frames) reuse them.
+
+    Returns
+    -------
+    float
+        Sigma (px).
+    """
     noise = noise_gradient(cv2.magnitude(gx, gy))
     return float(np.clip(np.sqrt(noise / target_noise_gradient), *sigma_range))

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -55,9 +56,12 @@ import numpy as np
 from .edges import (
     EdgeMap,
     as_float_gray,
-    auto_sigma,
     detect_edges,
+    edges_from_gradients,
+    gradients,
     orientation_field,
+    sigma_from_gradients,
+    splat_vectors,
     subpixel_edges,
     to_gray,
 )
@@ -430,11 +434,54 @@ def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -
         raise ValueError("frames differ in size")
     if len(greys) == 1 or how == "first":
         return greys[0]
-    means = np.array([float(g.mean()) for g in greys])
+    means = [float(g.mean()) for g in greys]
     ref = float(np.median(means))
-    stack = np.stack([g * (ref / m) if m > 1e-6 else g for g, m in zip(greys, means)])
-    merged = _median_frames(stack) if how == "median" else stack.mean(axis=0)
-    return np.clip(merged, 0.0, 255.0).astype(np.float32)
+    gains = [ref / m if m > 1e-6 else 1.0 for m in means]
+    merged = _reduce_scaled(greys, gains, _median_frames if how == "median" else _mean_frames)
+    return np.clip(merged, 0.0, 255.0, out=merged)
+
+
+def _mean_frames(stack: np.ndarray) -> np.ndarray:
+    """Per-pixel mean over the first axis of ``stack`` (grey levels)."""
+    return stack.mean(axis=0)
+
+
+def _reduce_scaled(
+    greys: list[np.ndarray],
+    gains: list[float],
+    reduce: Callable[[np.ndarray], np.ndarray],
+    block_rows: int = 32,
+) -> np.ndarray:
+    """``reduce`` over the frames, each times its gain, per pixel.
+
+    Products and reduction are in float64 and the result is rounded to float32 once. The
+    work goes in blocks of ``block_rows`` rows, so the scaled copies stay in the cache
+    instead of making one float64 stack of all frames (a few MB).
+
+    Parameters
+    ----------
+    greys : list of ndarray of float32, shape (h, w)
+        Frames (grey levels).
+    gains : list of float
+        Factor (dimensionless) of each frame.
+    reduce : callable
+        Maps an ``(n, rows, w)`` float64 stack to its ``(rows, w)`` per-pixel statistic.
+    block_rows : int
+        Rows per block.
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w)
+    """
+    h, w = greys[0].shape
+    out = np.empty((h, w), np.float32)
+    block = np.empty((len(greys), block_rows, w), np.float64)
+    for r0 in range(0, h, block_rows):
+        r1 = min(r0 + block_rows, h)
+        for i, (g, k) in enumerate(zip(greys, gains)):
+            np.multiply(g[r0:r1], k, out=block[i, : r1 - r0], dtype=np.float64)
+        out[r0:r1] = reduce(block[:, : r1 - r0])
+    return out
 
 
 def _median3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -471,26 +518,24 @@ class _Edges:
     signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
 
 
-def _splat_vectors(points: np.ndarray, vectors: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Bilinear splat of 2-vectors at sub-pixel ``points`` (px) into an (h, w, 2) image."""
-    h, w = shape
-    out = np.zeros((2, h * w), np.float64)
-    if len(points):
-        x = np.clip(points[:, 0], 0.0, w - 1.0001)
-        y = np.clip(points[:, 1], 0.0, h - 1.0001)
-        x0, y0 = x.astype(np.intp), y.astype(np.intp)
-        fx, fy = x - x0, y - y0
-        base = y0 * w + x0
-        idx = np.concatenate([base, base + 1, base + w, base + w + 1])
-        wgt = np.concatenate([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy])
-        out[0] = np.bincount(idx, wgt * np.tile(vectors[:, 0], 4), minlength=h * w)
-        out[1] = np.bincount(idx, wgt * np.tile(vectors[:, 1], 4), minlength=h * w)
-    return np.ascontiguousarray(out.T.reshape(h, w, 2), dtype=np.float32)
+def _gradients_for_canny(gray: np.ndarray, sigma_px: float | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """Derivatives (grey levels per px) of ``gray`` smoothed for Canny, and the smoothing (px).
+
+    ``sigma_px`` None picks the smoothing from the noise (:func:`vision.edges.auto_sigma`);
+    the 1 px derivatives that takes are reused when it keeps 1 px (clean frames) rather than
+    computed again.
+    """
+    if sigma_px is None:
+        gx, gy = gradients(gray, 1.0)
+        sigma_px = sigma_from_gradients(gx, gy)
+        if sigma_px == 1.0:
+            return gx, gy, sigma_px
+    gx, gy = gradients(gray, sigma_px)
+    return gx, gy, float(sigma_px)
 
 
-def _prepare_edges(gray: np.ndarray, sigma_px: float, cfg: RegistrationConfig, levels: int) -> _Edges:
-    """Canny, sub-pixel points and the orientation fields of one (merged) frame."""
-    em = detect_edges(gray, sigma_px=sigma_px, min_length_px=cfg.min_segment_px)
+def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
+    """Sub-pixel points and the orientation fields of the Canny edges of one (merged) frame."""
     pts, nrm = subpixel_edges(em)
     fld = orientation_field(pts, nrm, em.shape)
     pyramid = [cv2.GaussianBlur(fld, (0, 0), 0.7)]
@@ -501,7 +546,7 @@ def _prepare_edges(gray: np.ndarray, sigma_px: float, cfg: RegistrationConfig, l
             break
         cur = cv2.resize(cur, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA) * 2.0
         pyramid.append(cv2.GaussianBlur(cur, (0, 0), 0.7))
-    signed = cv2.GaussianBlur(_splat_vectors(pts, nrm, em.shape), (0, 0), 0.7)
+    signed = cv2.GaussianBlur(splat_vectors(pts, nrm, em.shape), (0, 0), 0.7)
     return _Edges(em, pts, fld, pyramid, signed)
 
 
@@ -648,33 +693,119 @@ def _shrunk_field(pyramid: list[np.ndarray], factor: float) -> tuple[np.ndarray,
     return zk, w0 / wk, h0 / hk
 
 
+def _shelf_layout(shapes: list[tuple[int, int]], gap: int, width: int) -> tuple[list[tuple[int, int]], tuple[int, int]]:
+    """Blocks of ``shapes`` ((rows, cols), px) packed in order on shelves ``width`` px wide.
+
+    A block starts a new shelf when it would end beyond ``width`` (a block wider than that
+    gets a shelf of its own). Every block has ``gap`` px of empty space before it in both
+    directions (to the previous block, the previous shelf or the mosaic's start). Returns
+    the (row, col) of each block's first pixel and the (rows, cols) of the packed area (up
+    to the last block's end, no trailing gap).
+    """
+    offsets = []
+    x, y, shelf, right = gap, gap, 0, 0
+    for h, w in shapes:
+        if x > gap and x + w > width:
+            x, y, shelf = gap, y + shelf + gap, 0
+        offsets.append((y, x))
+        right = max(right, x + w)
+        shelf = max(shelf, h)
+        x += w + gap
+    return offsets, (y + shelf, right)
+
+
+def _mosaic_layout(shapes: list[tuple[int, int]], gap: int) -> tuple[list[tuple[int, int]], tuple[int, int]]:
+    """Shelf layout of ``shapes`` (see :func:`_shelf_layout`) whose DFT is cheapest.
+
+    Tries shelf widths in 32 px steps from the widest block (plus ``gap``) to about twice
+    the square root of the packed area and keeps the one with the smallest DFT
+    (``cv2.getOptimalDFTSize`` of each side).
+    Returns the blocks' (row, col) offsets and the DFT size (rows, cols), which covers the
+    packed area.
+    """
+    widest = max(w for _, w in shapes) + gap
+    area = sum((h + gap) * (w + gap) for h, w in shapes)
+    best: tuple[int, list[tuple[int, int]], tuple[int, int]] | None = None
+    for width in range(widest, max(widest, int(2.0 * math.sqrt(area))) + 1, 32):
+        offsets, (rows, cols) = _shelf_layout(shapes, gap, width)
+        size = (cv2.getOptimalDFTSize(rows), cv2.getOptimalDFTSize(cols))
+        if best is None or size[0] * size[1] < best[0]:
+            best = (size[0] * size[1], offsets, size)
+    assert best is not None
+    return best[1], best[2]
+
+
+def _circular_ccorr(image: np.ndarray, templates: np.ndarray) -> np.ndarray:
+    """Largest over ``templates`` of their circular cross-correlation with ``image`` (by DFT).
+
+    ``out[u, v] = max_m sum Re(image[(u + i) mod H, (v + j) mod W] · conj(t_m[i, j]))``, the
+    sum running over the template's pixels and the two channels being the real and imaginary
+    parts; where a template placed at ``(u, v)`` does not wrap, this is ``cv2.matchTemplate``
+    with ``TM_CCORR`` (up to float rounding).
+
+    Parameters
+    ----------
+    image : ndarray of float32, shape (H, W, 2)
+        Complex image (real, imaginary).
+    templates : ndarray of float32, shape (n, s, s, 2)
+        Complex templates, at most ``H x W``.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+    """
+    rows, cols = image.shape[:2]
+    spectrum = cv2.dft(np.ascontiguousarray(image), flags=cv2.DFT_COMPLEX_OUTPUT)
+    padded = np.zeros((rows, cols, 2), np.float32)
+    out = None
+    for t in templates:
+        padded[: t.shape[0], : t.shape[1]] = t
+        t_spectrum = cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT)
+        corr = cv2.dft(cv2.mulSpectrums(spectrum, t_spectrum, 0, conjB=True), flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
+        out = corr[..., 0] if out is None else np.maximum(out, corr[..., 0])
+    assert out is not None
+    return out
+
+
 def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> list[_Proposal]:
     """Global search over scale, rotation, mirror and centre (see module docstring).
 
     For each scale the orientation field is shrunk so the phantom would appear at
     ``coarse_px_per_mm``; the rotation-averaged template (a ring detector) is correlated with
-    it (``cv2.matchTemplate``, summing ``Re(z · conj(t))`` over the two channels) and its best
-    peaks are kept; all rotations and both mirrors are then scored at those peaks by one
-    matrix product of image patches with the template stack.
+    it (summing ``Re(z · conj(t))`` over the template, centres up to a template size outside
+    the frame) and its best peaks are kept; all rotations and both mirrors are then scored at
+    those peaks by one matrix product of image patches with the template stack.
+
+    The shrunk fields of all scales are laid out in one mosaic, a template size of zeros
+    around each, so that one DFT of the mosaic and, per mirror, one product with the
+    template's spectrum and one inverse DFT give every scale's detector: the values are those
+    of a separate ``cv2.matchTemplate`` on each field zero-padded by a template size (up to
+    float rounding), at a fraction of the cost.
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
     lo, hi = cfg.px_per_mm_range
     n_scales = max(1, int(math.ceil(math.log(hi / lo) / math.log1p(cfg.coarse_scale_step))) + 1)
+    scales = np.geomspace(lo, hi, n_scales)
+    fields = [_shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm) for s in scales]
+    offsets, (rows, cols) = _mosaic_layout([z.shape[:2] for z, _, _ in fields], gap=size)
+    # the DFT wraps around: the zeros before the first shelf and column stand in for those
+    # after the last; the extra template size of zeros serves the patches cut below
+    mosaic = np.zeros((rows + size, cols + size, 2), np.float32)
+    for (z, _, _), (oy, ox) in zip(fields, offsets):
+        mosaic[oy : oy + z.shape[0], ox : ox + z.shape[1]] = z
+    detector = _circular_ccorr(mosaic[:rows, :cols], tpl.mean)
     spots = []  # (scale, shrink x, shrink y, centre x, centre y) per patch
     patches = []
-    for s in np.geomspace(lo, hi, n_scales):
-        z, fx, fy = _shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm)
+    for s, (z, fx, fy), (oy, ox) in zip(scales, fields, offsets):
         hk, wk = z.shape[:2]
-        # zero-pad by a template on each side: the spiral centre may lie outside the frame
-        padded = cv2.copyMakeBorder(z, size, size, size, size, cv2.BORDER_CONSTANT, value=0)
-        detector = np.maximum(
-            cv2.matchTemplate(padded, tpl.mean[0], cv2.TM_CCORR),
-            cv2.matchTemplate(padded, tpl.mean[1], cv2.TM_CCORR),
-        )
-        # detector[u, v]: template's top-left at padded (u, v), its centre at image (v + c - size, u + c - size)
-        for u, v in _peaks(detector, cfg.coarse_peaks_per_scale, radius=2):
-            patch = padded[u : u + size, v : v + size]
+        # this scale's field zero-padded by a template on each side (the spiral centre may
+        # lie outside the frame) is mosaic[y0 : oy + hk + size, x0 : ox + wk + size]
+        y0, x0 = oy - size, ox - size
+        # its detector[u, v]: template's top-left at padded (u, v), its centre at image
+        # (v + c - size, u + c - size)
+        for u, v in _peaks(detector[y0 : oy + hk + 1, x0 : ox + wk + 1], cfg.coarse_peaks_per_scale, radius=2):
+            patch = mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size]
             patches.append(np.concatenate([patch[..., 0].ravel(), patch[..., 1].ravel()]))
             spots.append((float(s), fx, fy, v + c - size, u + c - size))
     if not patches:
@@ -934,9 +1065,13 @@ class WallFit:
 
 def _edge_layers(em: EdgeMap) -> np.ndarray:
     """(h, w, 2) float32 unit gradient directions on edge pixels, zero elsewhere."""
-    mag = cv2.magnitude(em.gx, em.gy)
-    scale = np.where(em.mask, 1.0 / np.maximum(mag, 1e-12), 0.0).astype(np.float32)
-    return np.dstack([em.gx * scale, em.gy * scale])
+    idx = np.flatnonzero(em.mask)
+    inv = np.float32(1.0) / np.maximum(cv2.magnitude(em.gx, em.gy).ravel()[idx], np.float32(1e-12))
+    layers = np.zeros(em.shape + (2,), np.float32)
+    flat = layers.reshape(-1, 2)  # a view: edge pixels are written in place
+    flat[idx, 0] = em.gx.ravel()[idx] * inv
+    flat[idx, 1] = em.gy.ravel()[idx] * inv
+    return layers
 
 
 def _edge_distances(
@@ -1011,10 +1146,13 @@ def _wall_fit_from(
 
 
 def _check_walls(
-    pose: CameraPose, phantom: Phantom, spacing_px: float = 2.0, max_points: int = 600
+    pose: CameraPose, model: WallModel, spacing_px: float = 2.0, max_points: int = 600
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Wall points (px), normals, groups and group sizes for :func:`check`."""
-    model = wall_model(phantom, spacing_mm=0.02)
+    """Wall points (px), normals, groups and group sizes for :func:`check`.
+
+    ``model`` is :func:`wall_model` (0.02 mm spacing), thinned to about ``spacing_px`` (px)
+    between points and at most about ``max_points`` points.
+    """
     model = model.subsample(max(spacing_px / pose.px_per_mm, model.length_mm / max_points))
     pts, nrm = _image_points(pose, model)
     return pts, nrm, model.group, np.bincount(model.group, minlength=4)
@@ -1086,7 +1224,7 @@ def wall_fit(
     key = (phantom, registration.pose)
     walls = registration._check_cache.get(key)
     if walls is None:
-        walls = _check_walls(registration.pose, phantom)
+        walls = _check_walls(registration.pose, wall_model(phantom, spacing_mm=0.02))
         registration._check_cache.clear()
         registration._check_cache[key] = walls
     hw = registration.line_half_width_px
@@ -1176,14 +1314,15 @@ def register(
     frames = _frame_list(gray_frames)
     gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
-    sigma = cfg.edge_sigma_px if cfg.edge_sigma_px is not None else auto_sigma(gray)
+    gx, gy, sigma = _gradients_for_canny(gray, cfg.edge_sigma_px)
     levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
-    edges = _prepare_edges(gray, sigma, cfg, levels)
+    edges = _prepare_edges(edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px), levels)
     if len(edges.points) < 50:
         raise RegistrationError(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
         )
-    best = _best_pose(edges, wall_model(phantom), cfg)
+    model = wall_model(phantom, spacing_mm=0.02)
+    best = _best_pose(edges, model, cfg)
     if best is None:
         raise RegistrationError("no phantom found: no candidate of the global search converged to a plausible scale")
     pose, half_width, fit = best
@@ -1209,8 +1348,13 @@ def register(
         edge_sigma_px=sigma,
         image_size=(w, h),
     )
+    # check()'s wall points, from the model at hand (what wall_fit would build on first use)
+    key, walls = (phantom, pose), _check_walls(pose, model)
+    registration._check_cache[key] = walls
     # the residual as check() will measure it on later frames: on one frame as given
-    return replace(registration, residual_px=wall_fit(frames[0], registration, phantom, cfg).residual_px)
+    result = replace(registration, residual_px=wall_fit(frames[0], registration, phantom, cfg).residual_px)
+    result._check_cache[key] = walls  # replace() starts with an empty cache
+    return result
 
 
 def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAULT_PHANTOM) -> float:
