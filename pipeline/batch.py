@@ -306,15 +306,17 @@ def measure_frames(
 
     queue: list[tuple[Frame, np.ndarray]] = []  # frames waiting to be measured with the current plan
 
-    def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float) -> MeasuredFrame:
-        """The row of one measurement ``m`` (an exception when it raised), ``seconds`` spent."""
+    def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float, result: dict | None = None
+                 ) -> MeasuredFrame:
+        """The row of one measurement ``m`` (an exception when it raised), ``seconds`` spent;
+        ``result`` is ``m.to_row()`` when already computed."""
         if isinstance(m, Exception):  # a failed frame keeps its row
             result = {"ok": False, "reason": f"measurement raised {one_line(m)}"}
             if log.n_exceptions == 0:
                 log.warnings.append(f"frame {frame.index}: measurement raised {one_line(m)}")
             log.n_exceptions += 1
             m = None
-        else:
+        elif result is None:
             result = m.to_row()
         log.add_time("measure", seconds)
         for stage, stage_s in (getattr(m, "timings", None) or {}).items():
@@ -341,12 +343,11 @@ def measure_frames(
             ms = list(batch_fn([g for _, g in items], plan))
             if len(ms) != len(items):
                 raise RuntimeError(f"measure_frames_batch gave {len(ms)} results for {len(items)} frames")
-            for m in ms:
-                m.to_row()
+            results = [m.to_row() for m in ms]
         except Exception:  # one at a time instead, so that only the frame that raises fails
             return [measure(f, g) for f, g in items]
         share = (time.perf_counter() - t0) / len(items)
-        return [measured(f, g, m, share) for (f, g), m in zip(items, ms)]
+        return [measured(f, g, m, share, r) for (f, g), m, r in zip(items, ms, results)]
 
     def enqueue(frame: Frame, gray: np.ndarray) -> list[MeasuredFrame]:
         queue.append((frame, gray))
