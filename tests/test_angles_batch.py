@@ -3,7 +3,9 @@
 Rendered frames of four random poses (two mirrored, two not), with depths from not inserted
 (no array in the channel) through the entry channel to deep insertions, nuisance strengths 0–1,
 and frames where the measurement fails (no array, an array painted over with the fluid); plus
-colour, float32 and wrong-size frames, which the batch hands to the per-frame function.
+colour, float32 and wrong-size frames, which the batch hands to the per-frame function. The
+batch helpers (stations of several frames laid end to end) are also checked one by one against
+their per-frame originals on random inputs.
 """
 
 from __future__ import annotations
@@ -138,3 +140,85 @@ def test_batch_with_odd_frames(videos: list[tuple[object, list[np.ndarray]]]) ->
     for frame, b in zip(odd, batch):
         _assert_same(measure_frame(frame, plan), b)
     assert batch[4].reason.startswith("bad frame")
+
+
+# --------------------------------------------------------------------------- the ragged helpers
+#
+# Each batch helper against its per-frame original on random frames (lengths 1-40, random masks
+# and values), so that a frame's ends, empty masks and single stations are all met.
+
+
+def _random_frames(rng: np.random.Generator, n_frames: int = 7) -> list[int]:
+    return [int(rng.integers(1, 41)) for _ in range(n_frames)]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_ragged_helpers_equal_per_frame(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    lengths = _random_frames(rng)
+    rg = angles_mod._Ragged.of(lengths)
+    mask = rng.random(rg.row.size) < rng.uniform(0.2, 0.9)
+    values = rng.normal(size=rg.row.size)
+    for reach in (1, 2):
+        eroded = angles_mod._erode_ragged(mask, rg, reach)
+        expected = np.concatenate([angles_mod._erode(m, reach) for m in rg.split(mask)])
+        np.testing.assert_array_equal(eroded, expected)
+    for size in (1, 3, 7):
+        near = angles_mod._near_ragged(mask, rg, size)
+        np.testing.assert_array_equal(near, np.concatenate([angles_mod._near(m, size) for m in rg.split(mask)]))
+        med = angles_mod._running_median_ragged(values, rg, size)
+        np.testing.assert_array_equal(med, np.concatenate([angles_mod._running_median(v, size) for v in rg.split(values)]))
+    np.testing.assert_array_equal(rg.unpad(rg.pad(values, np.nan)), values)
+    np.testing.assert_array_equal(rg.count(mask), [m.sum() for m in rg.split(mask)])
+    np.testing.assert_array_equal(rg.last(mask), [np.flatnonzero(m)[-1] if m.any() else -1 for m in rg.split(mask)])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    rg = angles_mod._Ragged.of(_random_frames(rng))
+    cover = np.clip(rng.normal(0.5, 0.4, rg.row.size), 0.0, 1.0)
+    level = rng.uniform(0.3, 0.7, len(rg.n))
+    fallback = rng.uniform(0.0, 5.0, len(rg.n))
+    got = angles_mod._tip_crossing_ragged(cover, level, fallback, rg)
+    for b, c in enumerate(rg.split(cover)):
+        assert abs(got[b] - angles_mod._tip_crossing(c, float(level[b]), float(fallback[b]))) <= 1e-12
+    span = float(rng.uniform(2.0, 15.0))
+    stations = rg.local.astype(float)
+    values = rng.normal(size=rg.row.size).cumsum()
+    measured = (rng.random(rg.row.size) < 0.7) | (rg.local == 0)
+    last = rg.last(measured)
+    sel = measured & (rg.local >= (last - span)[rg.row])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        got = angles_mod._extrapolate_ragged(stations, values, sel, span, rg)
+    for b, (st, v, ms) in enumerate(zip(rg.split(stations), rg.split(values), rg.split(measured))):
+        expected = angles_mod._extrapolate(st[ms].astype(int), v[ms], float(rg.n[b] - 1), span)
+        assert abs(got[b] - expected) <= 1e-9 * max(1.0, abs(expected))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
+    """_fill_rows (integer and half positions), _interp_rows and _array_runs against np.interp
+    and _array_run row by row."""
+    rng = np.random.default_rng(seed)
+    n_rows, n = 6, int(rng.integers(2, 30))
+    for x in (np.arange(n, dtype=float), 4 * np.arange(n) + 1.5):
+        known = rng.random((n_rows, n)) < 0.5
+        known[0] = False  # a row with nothing to interpolate from is left alone
+        fit = rng.normal(size=(n_rows, 2, n))
+        expected = fit.copy()
+        for b in range(1, n_rows):
+            if known[b].any():
+                for r in range(2):
+                    expected[b, r, ~known[b]] = np.interp(x[~known[b]], x[known[b]], fit[b, r, known[b]])
+        angles_mod._fill_rows(fit, known, ~known & known.any(axis=1)[:, None], x)
+        np.testing.assert_array_equal(fit, expected)
+    xp = 3 * np.arange(8) + 1.5
+    fp = rng.normal(size=(n_rows, 8))
+    x = np.arange(30, dtype=float)
+    np.testing.assert_array_equal(angles_mod._interp_rows(x, xp, fp), [np.interp(x, xp, f) for f in fp])
+    dark = rng.random((n_rows, n)) < rng.uniform(0.2, 0.9)
+    probe = np.flatnonzero(rng.random(n) < 0.3)
+    probe = probe if len(probe) else np.array([0])
+    gap = float(rng.uniform(0.0, 4.0))
+    np.testing.assert_array_equal(angles_mod._array_runs(dark, probe, gap), [angles_mod._array_run(d, probe, gap) for d in dark])
