@@ -234,6 +234,9 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
                    help="videos per batch of the workers figure (default 4; 2 with --quick)")
     p.add_argument("--skip", default="", metavar="SECTION,..",
                    help="sections to leave out: memory, diagnosis, workers")
+    p.add_argument("--repeats", type=positive_int, default=None, metavar="N",
+                   help="times decoding and extraction are each timed, alternately; the fastest of each "
+                        "is compared (default 3; 2 with --quick)")
 
 
 def _run_bench(args: argparse.Namespace) -> int:
@@ -252,7 +255,8 @@ def _run_bench(args: argparse.Namespace) -> int:
     if workers is not None and (not workers or min(workers) < 1):
         raise UsageError("tympani bench: --workers counts must be >= 1")
     config = BenchConfig.quick() if args.quick else BenchConfig()
-    changes = {"n_frames": args.frames, "trials": args.trials, "workers": workers, "batch_videos": args.batch_videos}
+    changes = {"n_frames": args.frames, "trials": args.trials, "workers": workers, "batch_videos": args.batch_videos,
+               "repeats": args.repeats}
     try:
         config = replace(config, seed=args.seed, long_factor=args.long_factor,
                          sections=tuple(s for s in SECTIONS if s not in skip),
