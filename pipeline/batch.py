@@ -112,8 +112,10 @@ class ExtractConfig:
         See ``recheck_factor`` (px).
     measure_batch : int
         Frames measured together by ``vision.angles.measure_frames_batch`` (same results as
-        one at a time, less overhead per frame); 1 measures each frame on its own. At most this
-        many decoded frames are held back.
+        one at a time, less overhead per frame); 1 measures each frame on its own.
+    measure_batch_mb : float
+        Most grey-frame data (MiB) held for one batch: a batch ends at ``measure_batch``
+        frames or at this much, whichever comes first (64 frames of 640x480, 16 of 1920x1080).
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -124,7 +126,8 @@ class ExtractConfig:
     registration: Any = field(default_factory=_default_registration_config)
     recheck_factor: float = 2.0
     recheck_margin_px: float = 0.6
-    measure_batch: int = 32
+    measure_batch: int = 64
+    measure_batch_mb: float = 32.0
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
@@ -133,6 +136,8 @@ class ExtractConfig:
             raise ValueError(f"register_frames must be an integer >= 1, not {self.register_frames!r}")
         if int(self.measure_batch) != self.measure_batch or self.measure_batch < 1:
             raise ValueError(f"measure_batch must be an integer >= 1, not {self.measure_batch!r}")
+        if not self.measure_batch_mb > 0:
+            raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
             raise ValueError("recheck_factor must be >= 1 and recheck_margin_px >= 0")
 
@@ -281,9 +286,10 @@ def measure_frames(
     ------
     MeasuredFrame
         In frame order. Frames measured with the same plan are measured ``cfg.measure_batch``
-        at a time (``vision.angles.measure_frames_batch``, when the measurement has a plan);
-        at most ``cfg.measure_batch`` frames, or ``cfg.register_frames`` while a registration
-        is pending, are held back. The ``measure`` time of a batch is shared equally among its
+        at a time, fewer when those would exceed ``cfg.measure_batch_mb``
+        (``vision.angles.measure_frames_batch``, when the measurement has a plan); at most a
+        batch, or ``cfg.register_frames`` frames while a registration is pending, are held
+        back. The ``measure`` time of a batch is shared equally among its
         frames.
 
     Raises
@@ -351,7 +357,8 @@ def measure_frames(
 
     def enqueue(frame: Frame, gray: np.ndarray) -> list[MeasuredFrame]:
         queue.append((frame, gray))
-        return flush() if len(queue) >= cfg.measure_batch else []
+        full = len(queue) >= cfg.measure_batch or len(queue) * gray.nbytes >= cfg.measure_batch_mb * 2**20
+        return flush() if full else []
 
     def register_pending() -> None:
         nonlocal registration, plan, epoch, last_registered_at

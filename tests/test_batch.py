@@ -422,17 +422,22 @@ def test_measure_batch_validation():
     assert ExtractConfig().measure_batch >= 1
     with pytest.raises(ValueError, match="measure_batch"):
         ExtractConfig(measure_batch=0)
+    with pytest.raises(ValueError, match="measure_batch_mb"):
+        ExtractConfig(measure_batch_mb=0.0)
 
 
 def test_batched_measurement_equals_one_at_a_time(tmp_path):
     """Real vision on a rendered video, with checks every 7 frames: measuring 8 frames at a
-    time (vision.angles.measure_frames_batch) gives the table of measuring one at a time."""
+    time (vision.angles.measure_frames_batch), or as many as fit in 1 MiB (3 frames of
+    640x480), gives the table of measuring one at a time."""
     from pipeline.bench import render_bench_video
 
     video = render_bench_video(tmp_path / "r.mp4", n_frames=30, seed=3)
     one, _ = extract_video(video, ExtractConfig(measure_batch=1, recheck_every=7))
     eight, _ = extract_video(video, ExtractConfig(measure_batch=8, recheck_every=7))
+    capped, _ = extract_video(video, ExtractConfig(measure_batch=64, measure_batch_mb=1.0, recheck_every=7))
     cols = [c for c in one.columns if not c.endswith("_ms")]
     pd.testing.assert_frame_equal(one[cols], eight[cols])
+    pd.testing.assert_frame_equal(one[cols], capped[cols])
     assert one["ok"].sum() >= 25 and len(eight.attrs["checks"]) == len(one.attrs["checks"]) >= 3
     assert eight.attrs["timing_s"]["measure"] > 0 and "measure.survey" in eight.attrs["timing_s"]
