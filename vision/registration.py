@@ -725,13 +725,12 @@ def _peaks(score: np.ndarray, n: int, radius: int) -> list[tuple[int, int]]:
     flat = np.flatnonzero((score >= dil) & (score > 0))  # row-major order, as np.argwhere
     if len(flat) == 0:
         return []
-    cand = np.stack(np.divmod(flat, score.shape[1]), axis=1)
-    vals = score.reshape(-1)[flat]
+    width = score.shape[1]
     out: list[tuple[int, int]] = []
-    for i in np.argsort(-vals):
-        r, c = cand[i]
+    for i in np.argsort(-score.reshape(-1)[flat]).tolist():
+        r, c = divmod(int(flat[i]), width)
         if all(max(abs(r - r2), abs(c - c2)) > radius for r2, c2 in out):
-            out.append((int(r), int(c)))
+            out.append((r, c))
             if len(out) == n:
                 break
     return out
@@ -744,7 +743,7 @@ def _shrunk_field(pyramid: list[np.ndarray], factor: float) -> tuple[np.ndarray,
     2-channel float32 image and the actual x and y shrink factors (full-resolution px per
     shrunk px).
     """
-    level = int(np.clip(math.floor(math.log2(max(factor, 1.0) / 2.0)), 0, len(pyramid) - 1))
+    level = min(max(math.floor(math.log2(max(factor, 1.0) / 2.0)), 0), len(pyramid) - 1)
     src = pyramid[level]
     h0, w0 = pyramid[0].shape[:2]
     h, w = src.shape[:2]
@@ -909,18 +908,22 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
         # its detector[u, v]: template's top-left at padded (u, v), its centre at image
         # (v + c - size, u + c - size)
         for u, v in _peaks(detector[y0 : oy + hk + 1, x0 : ox + wk + 1], cfg.coarse_peaks_per_scale, radius=2):
-            patch = mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size]
-            patches.append(np.concatenate([patch[..., 0].ravel(), patch[..., 1].ravel()]))
+            patches.append(mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size])
             spots.append((float(s), fx, fy, v + c - size, u + c - size))
     if not patches:
         return []
-    scores = np.stack(patches) @ tpl.stack_real  # (n_spots, 2J)
+    # each patch as one row: its real parts, then its imaginary parts
+    rows = np.empty((len(patches), 2, size, size), np.float32)
+    for row, patch in zip(rows, patches):
+        row[...] = np.moveaxis(patch, 2, 0)
+    scores = rows.reshape(len(patches), 2 * size * size) @ tpl.stack_real  # (n_spots, 2J)
+    best = np.argmax(scores, axis=1)
+    best_scores = scores[np.arange(len(scores)), best].tolist()
     proposals: list[_Proposal] = []
-    for (s, fx, fy, ax, ay), row in zip(spots, scores):
-        j = int(np.argmax(row))
+    for (s, fx, fy, ax, ay), j, score in zip(spots, best.tolist(), best_scores):
         mirrored, rot = bool(j // n_rot), float(tpl.rotations[j % n_rot])
         cx, cy = (ax + 0.5) * fx - 0.5, (ay + 0.5) * fy - 0.5
-        proposals.append(_Proposal(float(row[j]), CameraPose(cx, cy, _wrap(rot), s, mirrored)))
+        proposals.append(_Proposal(score, CameraPose(cx, cy, _wrap(rot), s, mirrored)))
     proposals.sort(key=lambda p: -p.score)
     return _distinct(proposals, cfg.n_candidates)
 
@@ -1012,19 +1015,24 @@ def _refine_level(
     for _ in range(iterations):
         pts, nrm = _image_points(pose, model)
         vis = _visible(pts, fld.shape)
-        if vis.sum() < 20:
+        n_vis = int(np.count_nonzero(vis))
+        if n_vis < 20:
             break
-        pts, nrm = pts[vis], nrm[vis]
+        if n_vis < len(vis):
+            pts, nrm = pts[vis], nrm[vis]
         prof = _profiles(fld, pts, nrm, t)
         c2 = (nrm[:, 0] ** 2 - nrm[:, 1] ** 2)[:, None]  # exp(2i beta) of the wall normal
         s2 = (2.0 * nrm[:, 0] * nrm[:, 1])[:, None]
         a = np.maximum(prof[..., 0] * c2 + prof[..., 1] * s2, 0.0) * kernel[None, :]
         wsum = a.sum(axis=1)
         ok = wsum > 1e-6
-        if ok.sum() < 20:
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < 20:
             break
-        jac, rho = _similarity_jacobian(pts[ok], nrm[ok], np.array([pose.centre_x_px, pose.centre_y_px]))
-        step = _solve_step(jac, gain * (a[ok] @ t) / wsum[ok], wsum[ok], max_px=3.0 * sigma * gain)
+        if n_ok < len(ok):
+            pts, nrm, a, wsum = pts[ok], nrm[ok], a[ok], wsum[ok]
+        jac, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        step = _solve_step(jac, gain * (a @ t) / wsum, wsum, max_px=3.0 * sigma * gain)
         if step is None:
             break
         pose = _updated(pose, step, rho)
@@ -1065,9 +1073,11 @@ def _refine_signed(
     for _ in range(iterations):
         pts, nrm = _image_points(pose, model)
         vis = _visible(pts, sfield.shape)
-        if vis.sum() < 20:
+        n_vis = int(np.count_nonzero(vis))
+        if n_vis < 20:
             break
-        pts, nrm = pts[vis], nrm[vis]
+        if n_vis < len(vis):
+            pts, nrm = pts[vis], nrm[vis]
         prof = _profiles(sfield, pts, nrm, t)
         proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
         base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
