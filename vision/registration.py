@@ -570,7 +570,6 @@ class _Edges:
 
     edge_map: EdgeMap
     points: np.ndarray  # (n, 2) sub-pixel edge points (px)
-    field: np.ndarray  # (h, w, 2) doubled-angle field exp(2i alpha), unsmoothed
     pyramid: list[np.ndarray]  # smoothed doubled-angle fields, level L at scale 2^-L
     signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
 
@@ -605,7 +604,7 @@ def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
         cur = cv2.resize(cur, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA) * 2.0
         pyramid.append(cv2.GaussianBlur(cur, (0, 0), 0.7))
     signed = cv2.GaussianBlur(signed, (0, 0), 0.7)
-    return _Edges(em, pts, fld, pyramid, signed)
+    return _Edges(em, pts, pyramid, signed)
 
 
 # --------------------------------------------------------------------------- coarse search
@@ -840,10 +839,12 @@ def _circular_ccorr(image: np.ndarray, template_spectra: list[np.ndarray]) -> np
     ndarray of float32, shape (H, W)
     """
     spectrum = cv2.dft(np.ascontiguousarray(image), flags=cv2.DFT_COMPLEX_OUTPUT)
+    product, corr = np.empty_like(spectrum), np.empty_like(spectrum)  # reused for every template
     out = None
     for t_spectrum in template_spectra:
-        corr = cv2.dft(cv2.mulSpectrums(spectrum, t_spectrum, 0, conjB=True), flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
-        out = corr[..., 0] if out is None else np.maximum(out, corr[..., 0])
+        cv2.mulSpectrums(spectrum, t_spectrum, 0, product, conjB=True)
+        cv2.dft(product, corr, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
+        out = corr[..., 0].copy() if out is None else np.maximum(out, corr[..., 0], out=out)
     assert out is not None
     return out
 
