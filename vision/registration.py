@@ -445,22 +445,31 @@ def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -
     ndarray of float32, shape (h, w)
     """
     frames = _frame_list(frames)
+    grey8 = [np.asarray(f) for f in frames]
+    grey8 = [np.ascontiguousarray(f[:, :, 0] if f.ndim == 3 and f.shape[2] == 1 else f) for f in grey8]
+    if how == "median" and len(grey8) % 2 == 1 and len(grey8) > 1 and all(
+        f.dtype == np.uint8 and f.ndim == 2 for f in grey8
+    ):
+        if any(f.shape != grey8[0].shape for f in grey8):
+            raise ValueError("frames differ in size")
+        # the float frames are needed only for their means: one at a time
+        merged = _median_scaled_uint8(grey8, _gains([float(as_float_gray(f).mean()) for f in grey8]))
+        return np.clip(merged, 0.0, 255.0, out=merged)
     greys = [as_float_gray(f) for f in frames]
     shape = greys[0].shape
     if any(g.shape != shape for g in greys):
         raise ValueError("frames differ in size")
     if len(greys) == 1 or how == "first":
         return greys[0]
-    means = [float(g.mean()) for g in greys]
-    ref = float(np.median(means))
-    gains = [ref / m if m > 1e-6 else 1.0 for m in means]
-    bytes8 = [np.asarray(f) for f in frames]
-    bytes8 = [f[:, :, 0] if f.ndim == 3 and f.shape[2] == 1 else f for f in bytes8]
-    if how == "median" and len(greys) % 2 == 1 and all(f.dtype == np.uint8 and f.ndim == 2 for f in bytes8):
-        merged = _median_scaled_uint8(bytes8, gains)
-    else:
-        merged = _reduce_scaled(greys, gains, _median_frames if how == "median" else _mean_frames)
+    gains = _gains([float(g.mean()) for g in greys])
+    merged = _reduce_scaled(greys, gains, _median_frames if how == "median" else _mean_frames)
     return np.clip(merged, 0.0, 255.0, out=merged)
+
+
+def _gains(means: list[float]) -> list[float]:
+    """Factors (dimensionless) that bring each frame's mean grey level to their median."""
+    ref = float(np.median(means))
+    return [ref / m if m > 1e-6 else 1.0 for m in means]
 
 
 def _mean_frames(stack: np.ndarray) -> np.ndarray:
@@ -512,8 +521,8 @@ def _median_scaled_uint8(frames: list[np.ndarray], gains: list[float], block_row
     Equal to ``_reduce_scaled(greys, gains, _median_frames)``: each frame's products are
     formed in float64 by a 256-entry table and rounded to float32 at once. Rounding is
     monotonic, so the median (an order statistic) of the rounded products is the rounded
-    median of the exact ones. The median runs in blocks of ``block_rows`` rows, which stay
-    in the cache.
+    median of the exact ones. Table look-up and median run in blocks of ``block_rows``
+    rows, which stay in the cache (no full-size scaled copies).
 
     Parameters
     ----------
@@ -529,11 +538,15 @@ def _median_scaled_uint8(frames: list[np.ndarray], gains: list[float], block_row
     ndarray of float32, shape (h, w)
     """
     levels = np.arange(256, dtype=np.float64)
-    scaled = [cv2.LUT(f, (levels * k).astype(np.float32)) for f, k in zip(frames, gains)]
-    h, w = scaled[0].shape
+    tables = [(levels * k).astype(np.float32) for k in gains]
+    h, w = frames[0].shape
     out = np.empty((h, w), np.float32)
+    block = np.empty((len(frames), block_rows, w), np.float32)
     for r0 in range(0, h, block_rows):
-        out[r0 : r0 + block_rows] = _median_frames([f[r0 : r0 + block_rows] for f in scaled])
+        r1 = min(r0 + block_rows, h)
+        for f, table, scaled in zip(frames, tables, block):
+            cv2.LUT(f[r0:r1], table, dst=scaled[: r1 - r0])
+        out[r0:r1] = _median_frames(block[:, : r1 - r0])
     return out
 
 
