@@ -1231,6 +1231,17 @@ def _edge_distances(
     return dist.min(axis=1)
 
 
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array without NaNs (same value, less overhead).
+
+    The middle order statistic, or the mean (in the array's dtype) of the two middle ones.
+    """
+    k = len(values) // 2
+    if len(values) % 2:
+        return float(np.partition(values, k)[k])
+    return float(np.mean(np.partition(values, [k - 1, k])[k - 1 : k + 1]))
+
+
 def _summarise(
     dist: np.ndarray,
     group: np.ndarray,
@@ -1250,7 +1261,7 @@ def _summarise(
             continue  # mostly out of view
         found = dist[(group == g) & np.isfinite(dist)]
         # walls whose edge is missing (faint, occluded) do not count, unless most are missing
-        medians.append(min(float(np.median(found)), reach) if len(found) >= 0.25 * n_vis[g] else reach)
+        medians.append(min(_median(found), reach) if len(found) >= 0.25 * n_vis[g] else reach)
     inlier = dist <= tol
     return WallFit(
         residual_px=max(medians) if medians else float(np.median(np.minimum(dist, reach))),
