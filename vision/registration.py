@@ -977,8 +977,11 @@ def _profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) 
 
     Returns an ``(n, len(t), 2)`` float32 array (zero outside the image).
     """
-    sx = (pts[:, 0:1] + t[None, :] * nrm[:, 0:1]).astype(np.float32)
-    sy = (pts[:, 1:2] + t[None, :] * nrm[:, 1:2]).astype(np.float32)
+    sx = np.multiply.outer(nrm[:, 0], t)  # = pts + t * nrm, with one temporary less
+    sx += pts[:, 0:1]
+    sy = np.multiply.outer(nrm[:, 1], t)
+    sy += pts[:, 1:2]
+    sx, sy = sx.astype(np.float32), sy.astype(np.float32)
     return cv2.remap(fld, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
@@ -1095,24 +1098,30 @@ def _refine_signed(
         prof = _profiles(sfield, pts, nrm, t)
         proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
         base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        rows, rhs, wts = [], [], []
+        classes = []  # (sign, rows kept, their offsets, their weights) of each polarity
         for sign in (1.0, -1.0):
             expected = sign * half_width
             a = np.maximum(sign * proj, 0.0) * np.exp(-0.5 * ((t - expected) / sigma) ** 2)[None, :]
             wsum = a.sum(axis=1)
             ok = wsum > 1e-3
-            if ok.sum() < 10:
+            if np.count_nonzero(ok) < 10:
                 continue
-            rows.append(np.hstack([base[ok], np.full((int(ok.sum()), 1), sign)]))
-            rhs.append(gain * (a[ok] @ (t - expected)) / wsum[ok])
-            wts.append(wsum[ok])
-        if not rows:
+            classes.append((sign, ok, gain * (a[ok] @ (t - expected)) / wsum[ok], wsum[ok]))
+        if not classes:
             break
-        step = _solve_step(np.vstack(rows), np.concatenate(rhs), np.concatenate(wts), max_px=reach * gain)
+        # the rows of both classes: the similarity's columns and the half width's (+-1)
+        jac = np.empty((sum(len(r) for _, _, r, _ in classes), 5))
+        start = 0
+        for sign, ok, r, _ in classes:
+            np.compress(ok, base, axis=0, out=jac[start : start + len(r), :4])
+            jac[start : start + len(r), 4] = sign
+            start += len(r)
+        rhs = np.concatenate([r for _, _, r, _ in classes])
+        step = _solve_step(jac, rhs, np.concatenate([w for *_, w in classes]), max_px=reach * gain)
         if step is None:
             break
         pose = _updated(pose, step[:4], rho)
-        half_width = float(np.clip(half_width + step[4], -max_half_width, max_half_width))
+        half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
         if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
             break
         if float(np.abs(step).sum()) < tol_px:
