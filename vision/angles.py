@@ -511,6 +511,29 @@ class MeasurePlan:
         return point + (np.atleast_1d(np.asarray(u, dtype=float)) * half)[:, None] * normal
 
 
+# _backbone_arc_length's last results, keyed by phantom: every video's plan of the same
+# phantom reuses the 40001-point table (~7 ms each). Its arrays are read-only.
+_ARC_LENGTH_CACHE: dict[Phantom, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _backbone_arc_length(phantom: Phantom) -> tuple[np.ndarray, np.ndarray]:
+    """Backbone angle (rad) and arc length (mm) from ``theta_start`` on a fine grid (40001 points).
+
+    Memoised per phantom (the last few kept); the returned arrays are read-only.
+    """
+    table = _ARC_LENGTH_CACHE.get(phantom)
+    if table is None:
+        theta = np.linspace(phantom.theta_start, phantom.theta_end, 40001)
+        pts, _, _ = backbone_frame(theta, phantom)
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+        for a in (theta, s):
+            a.flags.writeable = False
+        if len(_ARC_LENGTH_CACHE) >= 4:
+            _ARC_LENGTH_CACHE.clear()
+        table = _ARC_LENGTH_CACHE[phantom] = (theta, s)
+    return table
+
+
 def _channel_stations(
     phantom: Phantom, step_mm: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
@@ -531,9 +554,7 @@ def _channel_stations(
     i_start : int
         First spiral station.
     """
-    theta = np.linspace(phantom.theta_start, phantom.theta_end, 40001)
-    pts, _, _ = backbone_frame(theta, phantom)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    theta, s = _backbone_arc_length(phantom)
     entry = phantom.entry_length_mm
     p = np.arange(0.0, entry + s[-1] - 0.5 * step_mm, step_mm)
     spiral = p >= entry

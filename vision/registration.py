@@ -59,9 +59,9 @@ from .edges import (
     detect_edges,
     edges_from_gradients,
     gradients,
-    orientation_field,
+    doubled_angles,
     sigma_from_gradients,
-    splat_vectors,
+    splat_vector_sets,
     subpixel_edges,
     to_gray,
 )
@@ -297,6 +297,11 @@ def _resample(line: np.ndarray, spacing_mm: float) -> tuple[np.ndarray, np.ndarr
     return pts, np.stack([-tangent[:, 1], tangent[:, 0]], axis=1), si
 
 
+# wall_model's last results, keyed by (phantom, spacing_mm): every registration and every
+# check() of the same phantom reuses them (~2.5 ms each). Their arrays are read-only.
+_WALL_MODEL_CACHE: dict[tuple[Phantom, float], WallModel] = {}
+
+
 def wall_model(phantom: Phantom = DEFAULT_PHANTOM, spacing_mm: float = 0.02) -> WallModel:
     """All walls of the channel as evenly spaced points with normals pointing out of it.
 
@@ -312,8 +317,23 @@ def wall_model(phantom: Phantom = DEFAULT_PHANTOM, spacing_mm: float = 0.02) -> 
     WallModel
         Outer and inner spiral walls, the two entry walls and the closing cap at theta_end.
         Every normal points away from the channel's interior, so an edge's polarity (dark to
-        bright along the normal or against it) means the same on every wall.
+        bright along the normal or against it) means the same on every wall. The model is
+        memoised per phantom and spacing (the last few kept), so its arrays are read-only.
     """
+    key = (phantom, float(spacing_mm))
+    model = _WALL_MODEL_CACHE.get(key)
+    if model is None:
+        model = _build_wall_model(phantom, float(spacing_mm))
+        for a in (model.points, model.normals, model.group):
+            a.flags.writeable = False
+        if len(_WALL_MODEL_CACHE) >= 4:
+            _WALL_MODEL_CACHE.clear()
+        _WALL_MODEL_CACHE[key] = model
+    return model
+
+
+def _build_wall_model(phantom: Phantom, spacing_mm: float) -> WallModel:
+    """:func:`wall_model` computed afresh (phantom lengths in mm)."""
     def outward(nrm: np.ndarray, ref: np.ndarray) -> np.ndarray:
         return np.where((np.sum(nrm * ref, axis=1) < 0)[:, None], -nrm, nrm)
 
@@ -344,7 +364,7 @@ def wall_model(phantom: Phantom = DEFAULT_PHANTOM, spacing_mm: float = 0.02) -> 
 
 def _image_points(pose: CameraPose, model: WallModel) -> tuple[np.ndarray, np.ndarray]:
     """Model points (px) and their unit normals in the image for ``pose``."""
-    m = pose.affine()[:, :2]
+    m = pose._matrix()  # the linear part of pose.affine(), without building the 2x3 matrix
     pts = model.points @ m.T + np.array([pose.centre_x_px, pose.centre_y_px])
     nrm = model.normals @ (m.T / max(pose.px_per_mm, 1e-12))  # a similarity: normals stay unit
     return pts, nrm
@@ -385,16 +405,13 @@ def _updated(pose: CameraPose, step: np.ndarray, rho: float) -> CameraPose:
 def _similarity_jacobian(pts: np.ndarray, nrm: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, float]:
     """Rows ``d(n·x)/d step`` for :func:`_updated` and the lever arm ``rho`` (px)."""
     d = pts - centre
-    rho = float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) + 1e-9
-    jac = np.stack(
-        [
-            nrm[:, 0],
-            nrm[:, 1],
-            np.sum(nrm * d, axis=1) / rho,
-            (nrm[:, 1] * d[:, 0] - nrm[:, 0] * d[:, 1]) / rho,
-        ],
-        axis=1,
-    )
+    dx, dy, nx, ny = d[:, 0], d[:, 1], nrm[:, 0], nrm[:, 1]
+    rho = float(np.sqrt(np.mean(dx * dx + dy * dy))) + 1e-9
+    jac = np.empty((len(d), 4))
+    jac[:, 0] = nx
+    jac[:, 1] = ny
+    np.divide(nx * dx + ny * dy, rho, out=jac[:, 2])
+    np.divide(ny * dx - nx * dy, rho, out=jac[:, 3])
     return jac, rho
 
 
@@ -428,17 +445,31 @@ def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -
     ndarray of float32, shape (h, w)
     """
     frames = _frame_list(frames)
+    grey8 = [np.asarray(f) for f in frames]
+    grey8 = [np.ascontiguousarray(f[:, :, 0] if f.ndim == 3 and f.shape[2] == 1 else f) for f in grey8]
+    if how == "median" and len(grey8) % 2 == 1 and len(grey8) > 1 and all(
+        f.dtype == np.uint8 and f.ndim == 2 for f in grey8
+    ):
+        if any(f.shape != grey8[0].shape for f in grey8):
+            raise ValueError("frames differ in size")
+        # the float frames are needed only for their means: one at a time
+        merged = _median_scaled_uint8(grey8, _gains([float(as_float_gray(f).mean()) for f in grey8]))
+        return np.clip(merged, 0.0, 255.0, out=merged)
     greys = [as_float_gray(f) for f in frames]
     shape = greys[0].shape
     if any(g.shape != shape for g in greys):
         raise ValueError("frames differ in size")
     if len(greys) == 1 or how == "first":
         return greys[0]
-    means = [float(g.mean()) for g in greys]
-    ref = float(np.median(means))
-    gains = [ref / m if m > 1e-6 else 1.0 for m in means]
+    gains = _gains([float(g.mean()) for g in greys])
     merged = _reduce_scaled(greys, gains, _median_frames if how == "median" else _mean_frames)
     return np.clip(merged, 0.0, 255.0, out=merged)
+
+
+def _gains(means: list[float]) -> list[float]:
+    """Factors (dimensionless) that bring each frame's mean grey level to their median."""
+    ref = float(np.median(means))
+    return [ref / m if m > 1e-6 else 1.0 for m in means]
 
 
 def _mean_frames(stack: np.ndarray) -> np.ndarray:
@@ -484,19 +515,58 @@ def _reduce_scaled(
     return out
 
 
+def _median_scaled_uint8(frames: list[np.ndarray], gains: list[float], block_rows: int = 32) -> np.ndarray:
+    """Per-pixel median of an odd number of 8-bit frames, each times its gain.
+
+    Equal to ``_reduce_scaled(greys, gains, _median_frames)``: each frame's products are
+    formed in float64 by a 256-entry table and rounded to float32 at once. Rounding is
+    monotonic, so the median (an order statistic) of the rounded products is the rounded
+    median of the exact ones. Table look-up and median run in blocks of ``block_rows``
+    rows, which stay in the cache (no full-size scaled copies).
+
+    Parameters
+    ----------
+    frames : list of ndarray of uint8, shape (h, w)
+        Grey frames (grey levels); an odd number of them.
+    gains : list of float
+        Factor (dimensionless) of each frame.
+    block_rows : int
+        Rows per block.
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w)
+    """
+    levels = np.arange(256, dtype=np.float64)
+    tables = [(levels * k).astype(np.float32) for k in gains]
+    h, w = frames[0].shape
+    out = np.empty((h, w), np.float32)
+    block = np.empty((len(frames), block_rows, w), np.float32)
+    for r0 in range(0, h, block_rows):
+        r1 = min(r0 + block_rows, h)
+        for f, table, scaled in zip(frames, tables, block):
+            cv2.LUT(f[r0:r1], table, dst=scaled[: r1 - r0])
+        out[r0:r1] = _median_frames(block[:, : r1 - r0])
+    return out
+
+
 def _median3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Element-wise median of three arrays (min/max only, so exact)."""
     return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
 
 
-def _median_frames(stack: np.ndarray) -> np.ndarray:
+def _median_frames(stack: np.ndarray | list[np.ndarray]) -> np.ndarray:
     """Per-pixel median over the first axis of ``stack`` (grey levels), equal to ``np.median``.
+
+    ``stack`` is an ``(n, ...)`` array or a list of ``n`` equal-shaped arrays.
 
     Three and five frames (the registration's default) take a min/max selection network (a
     dozen passes over the image, no sort); other odd counts one ``np.partition`` (the median
     is one of the values); even counts ``np.median``.
     """
     n = len(stack)
+    if n not in (3, 5) and not isinstance(stack, np.ndarray):
+        stack = np.stack(stack)
     if n == 3:
         return _median3(stack[0], stack[1], stack[2])
     if n == 5:  # the 2nd and 3rd of the first four, then the median of those and the fifth
@@ -513,7 +583,6 @@ class _Edges:
 
     edge_map: EdgeMap
     points: np.ndarray  # (n, 2) sub-pixel edge points (px)
-    field: np.ndarray  # (h, w, 2) doubled-angle field exp(2i alpha), unsmoothed
     pyramid: list[np.ndarray]  # smoothed doubled-angle fields, level L at scale 2^-L
     signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
 
@@ -537,7 +606,8 @@ def _gradients_for_canny(gray: np.ndarray, sigma_px: float | None) -> tuple[np.n
 def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
     """Sub-pixel points and the orientation fields of the Canny edges of one (merged) frame."""
     pts, nrm = subpixel_edges(em)
-    fld = orientation_field(pts, nrm, em.shape)
+    # orientation_field(pts, nrm, ...) and splat_vectors(pts, nrm, ...) in one pass
+    fld, signed = splat_vector_sets(pts, [doubled_angles(nrm), nrm], em.shape)
     pyramid = [cv2.GaussianBlur(fld, (0, 0), 0.7)]
     cur = fld
     for _ in range(levels):
@@ -546,8 +616,8 @@ def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
             break
         cur = cv2.resize(cur, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA) * 2.0
         pyramid.append(cv2.GaussianBlur(cur, (0, 0), 0.7))
-    signed = cv2.GaussianBlur(splat_vectors(pts, nrm, em.shape), (0, 0), 0.7)
-    return _Edges(em, pts, fld, pyramid, signed)
+    signed = cv2.GaussianBlur(signed, (0, 0), 0.7)
+    return _Edges(em, pts, pyramid, signed)
 
 
 # --------------------------------------------------------------------------- coarse search
@@ -597,6 +667,9 @@ class _TemplateStack:
     rotations: np.ndarray  # (J,) rotation_rad of each template
     stack_real: np.ndarray  # (2 size², 2J) float32: [real parts; imaginary parts], mirror-major
     mean: np.ndarray  # (2, size, size, 2) float32: rotation-averaged template of each mirror
+    # memo of the search's per-image-size work, filled by _coarse_plan (read-only values):
+    # field shapes -> (block offsets, DFT size, spectra of ``mean`` at that size)
+    plans: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def _template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack:
@@ -659,16 +732,17 @@ def _cached_template_stack(model: WallModel, cfg: RegistrationConfig) -> _Templa
 def _peaks(score: np.ndarray, n: int, radius: int) -> list[tuple[int, int]]:
     """Up to ``n`` local maxima (row, col) of ``score``, at least ``radius`` apart."""
     k = 2 * radius + 1
-    dil = cv2.dilate(score.astype(np.float32), np.ones((k, k), np.uint8))
-    cand = np.argwhere((score >= dil) & (score > 0))
-    if len(cand) == 0:
+    score = np.ascontiguousarray(score, dtype=np.float32)
+    dil = cv2.dilate(score, np.ones((k, k), np.uint8))
+    flat = np.flatnonzero((score >= dil) & (score > 0))  # row-major order, as np.argwhere
+    if len(flat) == 0:
         return []
-    vals = score[cand[:, 0], cand[:, 1]]
+    width = score.shape[1]
     out: list[tuple[int, int]] = []
-    for i in np.argsort(-vals):
-        r, c = cand[i]
+    for i in np.argsort(-score.reshape(-1)[flat]).tolist():
+        r, c = divmod(int(flat[i]), width)
         if all(max(abs(r - r2), abs(c - c2)) > radius for r2, c2 in out):
-            out.append((int(r), int(c)))
+            out.append((r, c))
             if len(out) == n:
                 break
     return out
@@ -681,7 +755,7 @@ def _shrunk_field(pyramid: list[np.ndarray], factor: float) -> tuple[np.ndarray,
     2-channel float32 image and the actual x and y shrink factors (full-resolution px per
     shrunk px).
     """
-    level = int(np.clip(math.floor(math.log2(max(factor, 1.0) / 2.0)), 0, len(pyramid) - 1))
+    level = min(max(math.floor(math.log2(max(factor, 1.0) / 2.0)), 0), len(pyramid) - 1)
     src = pyramid[level]
     h0, w0 = pyramid[0].shape[:2]
     h, w = src.shape[:2]
@@ -735,8 +809,31 @@ def _mosaic_layout(shapes: list[tuple[int, int]], gap: int) -> tuple[list[tuple[
     return best[1], best[2]
 
 
-def _circular_ccorr(image: np.ndarray, templates: np.ndarray) -> np.ndarray:
-    """Largest over ``templates`` of their circular cross-correlation with ``image`` (by DFT).
+def _template_spectra(templates: np.ndarray, rows: int, cols: int) -> list[np.ndarray]:
+    """DFTs of ``templates`` zero-padded to ``rows x cols`` (px), for :func:`_circular_ccorr`.
+
+    Parameters
+    ----------
+    templates : ndarray of float32, shape (n, s, s, 2)
+        Complex templates (real, imaginary), at most ``rows x cols``.
+    rows, cols : int
+        DFT size (px).
+
+    Returns
+    -------
+    list of ndarray of float32, shape (rows, cols, 2)
+        One complex spectrum per template.
+    """
+    padded = np.zeros((rows, cols, 2), np.float32)
+    spectra = []
+    for t in templates:
+        padded[: t.shape[0], : t.shape[1]] = t
+        spectra.append(cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT))
+    return spectra
+
+
+def _circular_ccorr(image: np.ndarray, template_spectra: list[np.ndarray]) -> np.ndarray:
+    """Largest over templates of their circular cross-correlation with ``image`` (by DFT).
 
     ``out[u, v] = max_m sum Re(image[(u + i) mod H, (v + j) mod W] · conj(t_m[i, j]))``, the
     sum running over the template's pixels and the two channels being the real and imaginary
@@ -747,24 +844,44 @@ def _circular_ccorr(image: np.ndarray, templates: np.ndarray) -> np.ndarray:
     ----------
     image : ndarray of float32, shape (H, W, 2)
         Complex image (real, imaginary).
-    templates : ndarray of float32, shape (n, s, s, 2)
-        Complex templates, at most ``H x W``.
+    template_spectra : list of ndarray of float32, shape (H, W, 2)
+        The templates' spectra at the image's size (:func:`_template_spectra`).
 
     Returns
     -------
     ndarray of float32, shape (H, W)
     """
-    rows, cols = image.shape[:2]
     spectrum = cv2.dft(np.ascontiguousarray(image), flags=cv2.DFT_COMPLEX_OUTPUT)
-    padded = np.zeros((rows, cols, 2), np.float32)
+    product, corr = np.empty_like(spectrum), np.empty_like(spectrum)  # reused for every template
     out = None
-    for t in templates:
-        padded[: t.shape[0], : t.shape[1]] = t
-        t_spectrum = cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT)
-        corr = cv2.dft(cv2.mulSpectrums(spectrum, t_spectrum, 0, conjB=True), flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
-        out = corr[..., 0] if out is None else np.maximum(out, corr[..., 0])
+    for t_spectrum in template_spectra:
+        cv2.mulSpectrums(spectrum, t_spectrum, 0, product, conjB=True)
+        cv2.dft(product, corr, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
+        out = corr[..., 0].copy() if out is None else np.maximum(out, corr[..., 0], out=out)
     assert out is not None
     return out
+
+
+def _coarse_plan(
+    tpl: _TemplateStack, shapes: list[tuple[int, int]]
+) -> tuple[list[tuple[int, int]], tuple[int, int], list[np.ndarray]]:
+    """Mosaic layout (:func:`_mosaic_layout`, gap a template size) of fields of ``shapes``
+    ((rows, cols), px) and the spectra of the rotation-averaged templates at its DFT size.
+
+    Both depend only on the image size and the settings, so they are memoised on ``tpl``
+    (every video of a batch has the same size); the spectra are read-only.
+    """
+    key = tuple(shapes)
+    plan = tpl.plans.get(key)
+    if plan is None:
+        offsets, (rows, cols) = _mosaic_layout(list(shapes), gap=tpl.size)
+        spectra = _template_spectra(tpl.mean, rows, cols)
+        for a in spectra:
+            a.flags.writeable = False
+        if len(tpl.plans) >= 4:
+            tpl.plans.clear()
+        plan = tpl.plans[key] = (offsets, (rows, cols), spectra)
+    return plan
 
 
 def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> list[_Proposal]:
@@ -788,13 +905,13 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     n_scales = max(1, int(math.ceil(math.log(hi / lo) / math.log1p(cfg.coarse_scale_step))) + 1)
     scales = np.geomspace(lo, hi, n_scales)
     fields = [_shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm) for s in scales]
-    offsets, (rows, cols) = _mosaic_layout([z.shape[:2] for z, _, _ in fields], gap=size)
+    offsets, (rows, cols), spectra = _coarse_plan(tpl, [z.shape[:2] for z, _, _ in fields])
     # the DFT wraps around: the zeros before the first shelf and column stand in for those
     # after the last; the extra template size of zeros serves the patches cut below
     mosaic = np.zeros((rows + size, cols + size, 2), np.float32)
     for (z, _, _), (oy, ox) in zip(fields, offsets):
         mosaic[oy : oy + z.shape[0], ox : ox + z.shape[1]] = z
-    detector = _circular_ccorr(mosaic[:rows, :cols], tpl.mean)
+    detector = _circular_ccorr(mosaic[:rows, :cols], spectra)
     spots = []  # (scale, shrink x, shrink y, centre x, centre y) per patch
     patches = []
     for s, (z, fx, fy), (oy, ox) in zip(scales, fields, offsets):
@@ -805,18 +922,22 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
         # its detector[u, v]: template's top-left at padded (u, v), its centre at image
         # (v + c - size, u + c - size)
         for u, v in _peaks(detector[y0 : oy + hk + 1, x0 : ox + wk + 1], cfg.coarse_peaks_per_scale, radius=2):
-            patch = mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size]
-            patches.append(np.concatenate([patch[..., 0].ravel(), patch[..., 1].ravel()]))
+            patches.append(mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size])
             spots.append((float(s), fx, fy, v + c - size, u + c - size))
     if not patches:
         return []
-    scores = np.stack(patches) @ tpl.stack_real  # (n_spots, 2J)
+    # each patch as one row: its real parts, then its imaginary parts
+    rows = np.empty((len(patches), 2, size, size), np.float32)
+    for row, patch in zip(rows, patches):
+        row[...] = np.moveaxis(patch, 2, 0)
+    scores = rows.reshape(len(patches), 2 * size * size) @ tpl.stack_real  # (n_spots, 2J)
+    best = np.argmax(scores, axis=1)
+    best_scores = scores[np.arange(len(scores)), best].tolist()
     proposals: list[_Proposal] = []
-    for (s, fx, fy, ax, ay), row in zip(spots, scores):
-        j = int(np.argmax(row))
+    for (s, fx, fy, ax, ay), j, score in zip(spots, best.tolist(), best_scores):
         mirrored, rot = bool(j // n_rot), float(tpl.rotations[j % n_rot])
         cx, cy = (ax + 0.5) * fx - 0.5, (ay + 0.5) * fy - 0.5
-        proposals.append(_Proposal(float(row[j]), CameraPose(cx, cy, _wrap(rot), s, mirrored)))
+        proposals.append(_Proposal(score, CameraPose(cx, cy, _wrap(rot), s, mirrored)))
     proposals.sort(key=lambda p: -p.score)
     return _distinct(proposals, cfg.n_candidates)
 
@@ -856,8 +977,11 @@ def _profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) 
 
     Returns an ``(n, len(t), 2)`` float32 array (zero outside the image).
     """
-    sx = (pts[:, 0:1] + t[None, :] * nrm[:, 0:1]).astype(np.float32)
-    sy = (pts[:, 1:2] + t[None, :] * nrm[:, 1:2]).astype(np.float32)
+    sx = np.multiply.outer(nrm[:, 0], t)  # = pts + t * nrm, with one temporary less
+    sx += pts[:, 0:1]
+    sy = np.multiply.outer(nrm[:, 1], t)
+    sy += pts[:, 1:2]
+    sx, sy = sx.astype(np.float32), sy.astype(np.float32)
     return cv2.remap(fld, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
@@ -908,19 +1032,24 @@ def _refine_level(
     for _ in range(iterations):
         pts, nrm = _image_points(pose, model)
         vis = _visible(pts, fld.shape)
-        if vis.sum() < 20:
+        n_vis = int(np.count_nonzero(vis))
+        if n_vis < 20:
             break
-        pts, nrm = pts[vis], nrm[vis]
+        if n_vis < len(vis):
+            pts, nrm = pts[vis], nrm[vis]
         prof = _profiles(fld, pts, nrm, t)
         c2 = (nrm[:, 0] ** 2 - nrm[:, 1] ** 2)[:, None]  # exp(2i beta) of the wall normal
         s2 = (2.0 * nrm[:, 0] * nrm[:, 1])[:, None]
         a = np.maximum(prof[..., 0] * c2 + prof[..., 1] * s2, 0.0) * kernel[None, :]
         wsum = a.sum(axis=1)
         ok = wsum > 1e-6
-        if ok.sum() < 20:
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < 20:
             break
-        jac, rho = _similarity_jacobian(pts[ok], nrm[ok], np.array([pose.centre_x_px, pose.centre_y_px]))
-        step = _solve_step(jac, gain * (a[ok] @ t) / wsum[ok], wsum[ok], max_px=3.0 * sigma * gain)
+        if n_ok < len(ok):
+            pts, nrm, a, wsum = pts[ok], nrm[ok], a[ok], wsum[ok]
+        jac, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        step = _solve_step(jac, gain * (a @ t) / wsum, wsum, max_px=3.0 * sigma * gain)
         if step is None:
             break
         pose = _updated(pose, step, rho)
@@ -961,30 +1090,38 @@ def _refine_signed(
     for _ in range(iterations):
         pts, nrm = _image_points(pose, model)
         vis = _visible(pts, sfield.shape)
-        if vis.sum() < 20:
+        n_vis = int(np.count_nonzero(vis))
+        if n_vis < 20:
             break
-        pts, nrm = pts[vis], nrm[vis]
+        if n_vis < len(vis):
+            pts, nrm = pts[vis], nrm[vis]
         prof = _profiles(sfield, pts, nrm, t)
         proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
         base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        rows, rhs, wts = [], [], []
+        classes = []  # (sign, rows kept, their offsets, their weights) of each polarity
         for sign in (1.0, -1.0):
             expected = sign * half_width
             a = np.maximum(sign * proj, 0.0) * np.exp(-0.5 * ((t - expected) / sigma) ** 2)[None, :]
             wsum = a.sum(axis=1)
             ok = wsum > 1e-3
-            if ok.sum() < 10:
+            if np.count_nonzero(ok) < 10:
                 continue
-            rows.append(np.hstack([base[ok], np.full((int(ok.sum()), 1), sign)]))
-            rhs.append(gain * (a[ok] @ (t - expected)) / wsum[ok])
-            wts.append(wsum[ok])
-        if not rows:
+            classes.append((sign, ok, gain * (a[ok] @ (t - expected)) / wsum[ok], wsum[ok]))
+        if not classes:
             break
-        step = _solve_step(np.vstack(rows), np.concatenate(rhs), np.concatenate(wts), max_px=reach * gain)
+        # the rows of both classes: the similarity's columns and the half width's (+-1)
+        jac = np.empty((sum(len(r) for _, _, r, _ in classes), 5))
+        start = 0
+        for sign, ok, r, _ in classes:
+            np.compress(ok, base, axis=0, out=jac[start : start + len(r), :4])
+            jac[start : start + len(r), 4] = sign
+            start += len(r)
+        rhs = np.concatenate([r for _, _, r, _ in classes])
+        step = _solve_step(jac, rhs, np.concatenate([w for *_, w in classes]), max_px=reach * gain)
         if step is None:
             break
         pose = _updated(pose, step[:4], rho)
-        half_width = float(np.clip(half_width + step[4], -max_half_width, max_half_width))
+        half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
         if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
             break
         if float(np.abs(step).sum()) < tol_px:
@@ -1095,12 +1232,23 @@ def _edge_distances(
     np.clip(ix, 0, w - 1, out=ix)  # samples off the image read the border, which the
     np.clip(iy, 0, h - 1, out=iy)  # offset test below then rejects as too far or misaligned
     offset = (ix - px) * nx + (iy - py) * ny
-    prof = layers[iy, ix]
+    prof = np.take(layers.reshape(-1, 2), iy * w + ix, axis=0)  # = layers[iy, ix], faster
     proj = prof[..., 0] * nx + prof[..., 1] * ny  # cos of the angle, 0 off edges
     expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
     dist = np.abs(offset - expected)
     dist[(np.abs(proj) < _COS_ALIGNED) | (np.abs(offset - t) > 1.0) | (dist > reach)] = np.inf
     return dist.min(axis=1)
+
+
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of a non-empty 1-D array without NaNs (same value, less overhead).
+
+    The middle order statistic, or the mean (in the array's dtype) of the two middle ones.
+    """
+    k = len(values) // 2
+    if len(values) % 2:
+        return float(np.partition(values, k)[k])
+    return float(np.mean(np.partition(values, [k - 1, k])[k - 1 : k + 1]))
 
 
 def _summarise(
@@ -1122,7 +1270,7 @@ def _summarise(
             continue  # mostly out of view
         found = dist[(group == g) & np.isfinite(dist)]
         # walls whose edge is missing (faint, occluded) do not count, unless most are missing
-        medians.append(min(float(np.median(found)), reach) if len(found) >= 0.25 * n_vis[g] else reach)
+        medians.append(min(_median(found), reach) if len(found) >= 0.25 * n_vis[g] else reach)
     inlier = dist <= tol
     return WallFit(
         residual_px=max(medians) if medians else float(np.median(np.minimum(dist, reach))),
