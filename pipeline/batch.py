@@ -266,6 +266,7 @@ def measure_frames(
     trial: str,
     log: ExtractLog | None = None,
     progress: bool = False,
+    keep_colour: bool = True,
 ) -> Iterator[MeasuredFrame]:
     """Register and measure the frames of ``source``, streaming.
 
@@ -281,6 +282,10 @@ def measure_frames(
         Filled in with registrations, checks, warnings, timings and counts.
     progress : bool
         Show a per-frame progress bar on stderr.
+    keep_colour : bool
+        Yield each frame as decoded. False yields it with its grey image in place of the
+        decoded one, so that the frames waiting for a batch hold no colour copy (a third of
+        the memory, and fresh allocations the decoder would otherwise pay for).
 
     Yields
     ------
@@ -414,6 +419,8 @@ def measure_frames(
             if frame is None:
                 break
             gray = to_gray(frame.image)
+            if not keep_colour:
+                frame = Frame(frame.index, frame.time_s, gray)
             log.add_time("gray", time.perf_counter() - t1)
             if bar is not None:
                 bar.update(1)
@@ -523,7 +530,7 @@ def extract_video(
     name = trial_name(path, trial)
     source = open_frames(path, fps=fps)
     log = ExtractLog()
-    rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress)]
+    rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress, keep_colour=False)]
     t0 = time.perf_counter()
     moves = remeasure_after_moves(source, rows, log, cfg, name)
     log.add_time("remeasure", time.perf_counter() - t0)
