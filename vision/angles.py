@@ -2348,21 +2348,20 @@ def measure_frames_batch(
     grays: list[np.ndarray] | np.ndarray,
     plan: MeasurePlan,
 ) -> list[FrameMeasurement]:
-    """:func:`measure_frame` of several frames of one plan, stages 1–3 run on all at once.
+    """:func:`measure_frame` of several frames of one plan, all four stages run on all at once.
 
     The survey (stage 1) of the frames is computed stacked along a leading axis, a few dozen
-    NumPy calls for the whole batch instead of per frame; the edges and the centre line
-    (stages 2–3) run their station-wise helpers once on all frames' stations (see the notes
-    above :class:`_Ragged`); the angles (stage 4) take the SPEC angles of all
-    frames' points in one call and the rest per frame. The
-    results equal :func:`measure_frame`'s frame by frame (the per-frame function stays the
-    reference; ``tests/test_angles_batch.py`` compares them).
+    NumPy calls for the whole batch instead of per frame; the edges, the centre line and the
+    angles (stages 2–4) run on all frames' stations laid end to end (see the notes above
+    :class:`_Ragged`), so that only the remaps and the assembly of the results are per frame.
+    The results equal :func:`measure_frame`'s frame by frame to rounding (the per-frame
+    function stays the reference; ``tests/test_angles_batch.py`` compares them to 1e-9).
 
     Parameters
     ----------
     grays : list of ndarray, or ndarray of shape (B, H, W)
         The frames, each as :func:`measure_frame` accepts it (2-D grey or BGR/BGRA colour).
-        16–32 frames amortise the per-call overhead; more only hold more frames in memory.
+        32–64 frames amortise the per-call overhead; more only hold more frames in memory.
     plan : MeasurePlan
         The video's plan (:func:`prepare_measurement`).
 
@@ -2377,7 +2376,7 @@ def measure_frames_batch(
     -----
     Frames that are not valid images, or not of the plan's shape, and any batch whose joint
     survey raises, are measured one by one with :func:`measure_frame`; a batch whose joint
-    stages 2–3 raise gets them frame by frame.
+    stages 2–3 (or 4) raise gets them (or it) frame by frame.
     """
     t0 = time.perf_counter()
     results: list[FrameMeasurement | None] = [None] * len(grays)
