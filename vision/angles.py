@@ -1758,6 +1758,11 @@ class _Ragged:
         """``x`` (shape (total, ...)) cut into its frames (views)."""
         return [x[s : s + m] for s, m in zip(self.start.tolist(), self.n.tolist())]
 
+    def subset(self, frames: np.ndarray) -> tuple[np.ndarray, "_Ragged"]:
+        """The positions of ``frames`` (increasing frame indices), as a mask over the
+        positions, and those frames' own layout."""
+        return np.isin(self.row, frames), _Ragged.of(self.n[frames])
+
 
 def _erode_ragged(mask: np.ndarray, rg: _Ragged, reach: int) -> np.ndarray:
     """:func:`_erode` of each frame of a ragged ``mask`` (stations beyond a frame's ends fail)."""
@@ -1816,16 +1821,35 @@ def _smooth_valid_padded(y: np.ndarray, w: np.ndarray, lengths: np.ndarray, size
     fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
     inside = x[None, :] < np.asarray(lengths)[:, None]
     known, unknown = have & inside, ~have & inside
-    gaps = unknown.any(axis=1)
-    if gaps.any() and known.any(axis=1)[gaps].all():
+    if not known.any(axis=1).all():  # as np.interp in _smooth_valid
+        raise ValueError("a frame has no valid station to interpolate from")
+    if unknown.any():
         _fill_rows(fit, known, unknown, x)
-    elif gaps.any():  # a frame with nothing to interpolate from: np.interp raises as per frame
-        for b, m in enumerate(np.asarray(lengths).tolist()):
-            f, hv = fit[b, :, :m], have[b, :m]
-            if not hv.all():
-                for row in f:
-                    row[~hv] = np.interp(x[:m][~hv], x[:m][hv], row[hv])
     return fit, slope
+
+
+def _smooth_ragged(values: np.ndarray, valid: np.ndarray, rg: _Ragged, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_smooth_valid` of each frame of a ragged batch.
+
+    Parameters
+    ----------
+    values : ndarray, shape (k, total)
+        ``k`` profiles (any unit) at the frames' stations (ragged ``rg``).
+    valid : ndarray, shape (total,), bool
+        Stations measured (at least one per frame); the others' values are ignored.
+    rg : _Ragged
+        The frames' layout.
+    size : int
+        Window (stations) of the local fits.
+
+    Returns
+    -------
+    fit, slope : ndarray, shape (k, total)
+        As :func:`_smooth_valid` (unit, unit per station).
+    """
+    y = np.moveaxis(rg.pad(np.where(valid, values, 0.0), 0.0), 0, 1)
+    fit, slope = _smooth_valid_padded(y, rg.pad(valid, False), rg.n, size)
+    return rg.unpad(np.moveaxis(fit, 1, 0)), rg.unpad(np.moveaxis(slope, 1, 0))
 
 
 def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
@@ -1907,12 +1931,9 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     window = _odd(2.0 * cfg.gap_smooth_mm / step)
     local = np.flatnonzero(arr.count(fluid_ok) >= 3)
     if len(local):  # where the fluid shows clear of the wall, the local levels
-        sub = np.isin(arr.row, local)
-        part = _Ragged.of(arr.n[local])
+        sub, part = arr.subset(local)
         ok = fluid_ok[sub]
-        y = np.where(ok, np.vstack([c_fluid[sub], c_array[sub]]), 0.0)
-        fit, _ = _smooth_valid_padded(np.moveaxis(part.pad(y, 0.0), 0, 1), part.pad(ok, False), part.n, window)
-        lf, la = part.unpad(np.moveaxis(fit, 1, 0))
+        (lf, la), _ = _smooth_ragged(np.vstack([c_fluid[sub], c_array[sub]]), ok, part, window)
         near = np.zeros(len(level), dtype=bool)
         near[sub] = _near_ragged(ok, part, window)
         smooth = np.zeros(len(level))
@@ -1995,8 +2016,8 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     if not len(live):
         return out
     if len(live) < len(edges):  # the others have no centre line
-        sub = np.isin(rg.row, live)
-        rg, lo, station = _Ragged.of(rg.n[live]), lo[live], station[sub]
+        sub, rg = rg.subset(live)
+        lo, station = lo[live], station[sub]
         cat, v_c, measured = [a[sub] for a in cat], v_c[sub], measured[sub]
     v_in, v_out, ok_in, ok_out = cat
     n, row, local = rg.n, rg.row, rg.local
@@ -2007,10 +2028,7 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     dev = np.abs(v_c - med)
     mad = _row_quantiles(rg.pad(dev, 0.0), rg.pad(measured, False), 0.5)
     measured &= dev <= np.maximum(tol, 3.0 * 1.4826 * mad)[row]
-    y = np.where(measured, v_c, 0.0)[None, :]
-    fit, slant = _smooth_valid_padded(np.moveaxis(rg.pad(y, 0.0), 0, 1), rg.pad(measured, False), n,
-                                      _odd(2.5 * cfg.gap_smooth_mm / step))
-    centre, slant = rg.unpad(fit[:, 0]), rg.unpad(slant[:, 0])
+    (centre,), (slant,) = _smooth_ragged(v_c[None, :], measured, rg, _odd(2.5 * cfg.gap_smooth_mm / step))
     stretch = np.sqrt(1.0 + (slant / step) ** 2)
     # the tip: the half-level crossing along the centre line, extrapolated from the body
     last = rg.last(measured)
@@ -2051,15 +2069,12 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     keep = np.flatnonzero(good)
     if not len(keep):
         return out
-    sub = np.isin(row, keep)
-    part = _Ragged.of(n[keep])
+    sub, part = rg.subset(keep)
     ok = measured[sub]
-    y = np.where(ok, np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), 0.0)
-    fit, _ = _smooth_valid_padded(np.moveaxis(part.pad(y, 0.0), 0, 1), part.pad(ok, False), part.n, k_smooth)
-    centre, gap = part.unpad(np.moveaxis(fit, 1, 0))
+    (centre, gap), _ = _smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
     line = point[sub] + centre[:, None] * normal[sub]
     radius = radius[sub]
-    for i, (b, s0, m_b) in enumerate(zip(keep.tolist(), part.start.tolist(), part.n.tolist())):
+    for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
         a = slice(s0, s0 + m_b)
         out[int(live[b])] = _CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a])
     return out
