@@ -7,7 +7,9 @@
    full extraction (:func:`pipeline.batch.extract_video`: registration, checks, measurement),
    and their ratio. Both are timed ``repeats`` times (3), alternately, and the fastest of each
    is compared; the first extraction in a process also pays one-off start-up costs (imports,
-   first calls), so it is reported beside as the cold figure;
+   first calls), so it is reported beside as the cold figure. The process is pinned to one CPU
+   meanwhile (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's,
+   as many as there are cores) that OpenCV's thread setting does not reach;
 2. **per-stage time** (ms/frame) of the warm extraction: decode (+ grey), registration (the
    one-off registration, its measurement plan and the periodic checks) and the measurement's
    stages (survey, edges, centre line, angles);
@@ -26,6 +28,7 @@ test: the numbers depend on the machine and its load (the ratio is the most robu
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -38,7 +41,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from threadpoolctl import threadpool_limits
 
@@ -191,6 +194,33 @@ def _peak_rss_mib() -> float:
 # --------------------------------------------------------------------------- 1-2: decode vs extraction
 
 
+@contextlib.contextmanager
+def _one_cpu() -> Iterator[int | None]:
+    """Pin this process (all its threads) to one CPU for the duration; yields the CPU, or None
+    where the platform cannot pin (no ``os.sched_setaffinity``) or refuses to.
+
+    ``cv2.setNumThreads(1)`` and the BLAS limit do not reach the video decoder: OpenCV's FFmpeg
+    backend decodes with one thread per core, so on 2 cores decoding alone ran about 1.4x
+    faster than on one, and "decode speed on one core" was not on one core. The affinity is
+    restored on exit (the worker-count figure must not inherit it).
+    """
+    getter, setter = getattr(os, "sched_getaffinity", None), getattr(os, "sched_setaffinity", None)
+    if getter is None or setter is None:
+        yield None
+        return
+    before = getter(0)
+    cpu = min(before)
+    try:
+        setter(0, {cpu})
+    except OSError:
+        yield None
+        return
+    try:
+        yield cpu
+    finally:
+        setter(0, before)
+
+
 def _decode_s(path: Path, fps: float | None) -> tuple[int, float, tuple[int, int]]:
     """Frames, wall time (s) and (height, width) of decoding ``path`` and converting to grey."""
     from vision.frames import open_frames, to_gray
@@ -236,9 +266,10 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
     import pandas as pd
 
     decodes, extracts = [], []
-    for _ in range(max(1, int(repeats))):
-        decodes.append(_decode_s(path, fps))
-        extracts.append(_extract_s(path, cfg, fps))
+    with _one_cpu() as cpu:
+        for _ in range(max(1, int(repeats))):
+            decodes.append(_decode_s(path, fps))
+            extracts.append(_extract_s(path, cfg, fps))
     n, decode_s, shape = min(decodes, key=lambda d: d[1])
     table, cold_s = extracts[0]
     table_b, warm_s = min(extracts, key=lambda e: e[1])  # the best run is the warm figure
@@ -257,6 +288,7 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
             stages[f"measure_frame {col}"] = float(table_b[col].mean())
     return {
         "n_frames": n,
+        "pinned_cpu": cpu,
         "height_px": shape[0],
         "width_px": shape[1],
         "decode_fps": decode_fps,
@@ -398,7 +430,8 @@ def run_bench(
     Returns
     -------
     dict
-        ``video`` and the decode/extraction figures: ``n_frames``, ``width_px``, ``height_px``,
+        ``video`` and the decode/extraction figures: ``n_frames``, ``pinned_cpu`` (the CPU they
+        ran on, None when the process could not be pinned), ``width_px``, ``height_px``,
         ``decode_fps``, ``extract_fps`` (warm), ``extract_fps_cold`` (frames/s), ``ratio``
         (decode_fps / extract_fps), ``extract_vs_decode`` (extract_fps / decode_fps),
         ``extract_fps_steady`` (frames/s without registration and its preparation),
@@ -462,10 +495,12 @@ def run_bench(
 
 def format_bench(result: dict) -> str:
     """The benchmark result as a short human-readable report."""
+    cpu = result.get("pinned_cpu")
+    core = f"1 core: pinned to CPU {cpu}" if cpu is not None else "NOT pinned: the decoder may use several cores"
     lines = [
         f"video          {result['video']}: {result['n_frames']} frames, {result['width_px']}x{result['height_px']} px",
-        f"decode only    {result['decode_fps']:8.1f} frames/s (1 core; read + grey)",
-        f"full extract   {result['extract_fps']:8.1f} frames/s (1 core, warm), {result['n_ok']} frames ok; "
+        f"decode only    {result['decode_fps']:8.1f} frames/s ({core}; read + grey)",
+        f"full extract   {result['extract_fps']:8.1f} frames/s (same core, warm), {result['n_ok']} frames ok; "
         f"{result['extract_fps_cold']:.1f} frames/s cold (first in the process)",
         f"ratio          {result['ratio']:8.2f} x (decode / extract): extraction at "
         f"{100.0 * result['extract_vs_decode']:.0f} % of decode speed",

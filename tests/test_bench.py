@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
+import os
 
 import pytest
 
-from pipeline.bench import SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
+from pipeline.bench import _one_cpu, SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
 from pipeline.cli import main
 from vision.frames import open_frames
 
@@ -25,6 +26,14 @@ def test_loop_video_repeats_the_frames(tiny_video, tmp_path):
     assert open_frames(looped).count() == 3 * open_frames(tiny_video).count()
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this platform")
+def test_one_cpu_pins_every_thread_then_restores():
+    before = os.sched_getaffinity(0)
+    with _one_cpu() as cpu:
+        assert os.sched_getaffinity(0) == {cpu} and cpu in before
+    assert os.sched_getaffinity(0) == before
+
+
 def test_bench_config_checks_its_values():
     with pytest.raises(ValueError):
         BenchConfig(sections=("nope",))
@@ -38,6 +47,7 @@ def test_bench_config_checks_its_values():
 def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     config = BenchConfig.quick(long_factor=3, trials=2, workers=(1, 2), batch_videos=2)
     lines: list[str] = []
+    cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     result = run_bench(video=tiny_video, config=config, log=lines.append)
     assert result["errors"] == {}
     assert lines[0] == "decode vs extraction" and set(SECTIONS) <= set(lines)
@@ -47,6 +57,8 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
         assert _finite_positive(result[key]), key
     assert result["ratio"] == pytest.approx(1.0 / result["extract_vs_decode"])
     assert result["n_ok"] >= 10
+    if cpus is not None:  # timed on one CPU, and the process let go afterwards
+        assert result["pinned_cpu"] in cpus and os.sched_getaffinity(0) == cpus
     groups = result["stage_groups_ms"]
     for stage in ("decode", "registration", "measure", "  edges", "  angles"):
         assert groups[stage] > 0, stage
