@@ -174,6 +174,28 @@ def test_ragged_helpers_equal_per_frame(seed: int) -> None:
 
 
 @pytest.mark.parametrize("seed", range(5))
+def test_ragged_smoothing_equals_per_frame(seed: int) -> None:
+    """_smooth_ragged (running sums across frames, window clipped to each frame, gaps filled)
+    against _smooth_valid frame by frame, sparse frames included (their gaps are filled)."""
+    rng = np.random.default_rng(seed)
+    rg = angles_mod._Ragged.of(_random_frames(rng, 9))
+    density = rng.uniform(0.05, 1.0, len(rg.n))[rg.row]  # some frames nearly empty: long gaps
+    valid = (rng.random(rg.row.size) < density) | (rg.local == rng.integers(0, rg.n)[rg.row])
+    for k in (1, 2):
+        values = rng.normal(size=(k, rg.row.size)).cumsum(axis=1) + 100.0  # far from 0, as offsets in mm are not
+        values[:, ~valid] = np.nan  # ignored
+        for size in (1, 5, 9, 13):
+            fit, slope = angles_mod._smooth_ragged(values, valid, rg, size)
+            for b, (v, ok) in enumerate(zip(np.split(values, rg.start[1:], axis=1), rg.split(valid))):
+                f_b, s_b = angles_mod._smooth_valid(v, ok, size)
+                cut = slice(rg.start[b], rg.start[b] + rg.n[b])
+                np.testing.assert_allclose(fit[:, cut], f_b, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(slope[:, cut], s_b, rtol=0, atol=1e-9)
+    with pytest.raises(ValueError):  # a frame with no valid station, as np.interp in _smooth_valid
+        angles_mod._smooth_ragged(np.zeros((1, rg.row.size)), valid & (rg.row != 0), rg, 3)
+
+
+@pytest.mark.parametrize("seed", range(5))
 def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
     rng = np.random.default_rng(seed)
     rg = angles_mod._Ragged.of(_random_frames(rng))

@@ -1462,8 +1462,8 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
         cv2.blur(strip.astype(np.float32, copy=False), (3, 3), dst=out)
     n_rows = len(imgs)
     low = coarse + plan.coarse_penalty
-    seed_c = low.argmin(axis=1)
-    darkest = np.take_along_axis(low, seed_c[:, None, :], axis=1)[:, 0]
+    darkest = low.min(axis=1)
+    seed_c = (low == darkest[:, None, :]).argmax(axis=1)  # = low.argmin(axis=1) (finite values), faster
     brightest = (coarse - plan.coarse_penalty).max(axis=1)
     pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
     steepest = (np.abs(coarse[:, 1:] - coarse[:, :-1]) - pair_penalty).max(axis=1)
@@ -1761,7 +1761,9 @@ class _Ragged:
     def subset(self, frames: np.ndarray) -> tuple[np.ndarray, "_Ragged"]:
         """The positions of ``frames`` (increasing frame indices), as a mask over the
         positions, and those frames' own layout."""
-        return np.isin(self.row, frames), _Ragged.of(self.n[frames])
+        chosen = np.zeros(len(self.n), dtype=bool)
+        chosen[frames] = True
+        return chosen[self.row], _Ragged.of(self.n[frames])
 
 
 def _erode_ragged(mask: np.ndarray, rg: _Ragged, reach: int) -> np.ndarray:
@@ -1784,52 +1786,14 @@ def _near_ragged(mask: np.ndarray, rg: _Ragged, size: int) -> np.ndarray:
     return csum[np.minimum(i + h, last) + 1] > csum[np.maximum(i - h, first)]
 
 
-def _smooth_valid_padded(y: np.ndarray, w: np.ndarray, lengths: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_smooth_valid` of frames padded to a common length, equal to it frame by frame.
-
-    Parameters
-    ----------
-    y : ndarray, shape (B, k, n)
-        Per frame, ``k`` profiles (any unit) along its stations, 0 at stations not valid and
-        beyond its length.
-    w : ndarray, shape (B, n), bool
-        Valid stations (at least one per frame; False beyond its length).
-    lengths : ndarray, shape (B,)
-        Stations of each frame.
-    size : int
-        Window (stations) of the local fits.
-
-    Returns
-    -------
-    fit, slope : ndarray, shape (B, k, n)
-        As :func:`_smooth_valid` (unit, unit per station) up to each frame's length.
-    """
-    n_rows, k, n = y.shape
-    h = size // 2
-    x = np.arange(n, dtype=float)
-    csum = np.zeros((n_rows, 3 + 2 * k, n + 2 * h + 1))  # as in _smooth_valid, one block per frame
-    body = csum[:, :, h + 1 : n + h + 1]
-    body[:, 0] = w
-    np.multiply(body[:, 0], x, out=body[:, 1])
-    np.multiply(body[:, 1], x, out=body[:, 2])
-    body[:, 3 : 3 + k] = y
-    np.multiply(body[:, 3 : 3 + k], x, out=body[:, 3 + k :])
-    np.cumsum(body, axis=2, out=body)
-    csum[:, :, n + h + 1 :] = csum[:, :, n + h : n + h + 1]
-    sums = csum[:, :, 2 * h + 1 : 2 * h + 1 + n] - csum[:, :, :n]
-    fit, slope, have = _window_line(np.moveaxis(sums, 1, 0), k, x)  # (k, B, n), (k, B, n), (B, n)
-    fit, slope = np.moveaxis(fit, 1, 0), np.moveaxis(slope, 1, 0)
-    inside = x[None, :] < np.asarray(lengths)[:, None]
-    known, unknown = have & inside, ~have & inside
-    if not known.any(axis=1).all():  # as np.interp in _smooth_valid
-        raise ValueError("a frame has no valid station to interpolate from")
-    if unknown.any():
-        _fill_rows(fit, known, unknown, x)
-    return fit, slope
-
-
 def _smooth_ragged(values: np.ndarray, valid: np.ndarray, rg: _Ragged, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_smooth_valid` of each frame of a ragged batch.
+    """:func:`_smooth_valid` of each frame of a ragged batch, equal to it frame by frame.
+
+    The running sums of :func:`_smooth_valid` run over all frames' stations end to end, and
+    each window's sum is the difference of two of them with the window clipped to its own
+    frame (as in :func:`_near_ragged`). The weights, stations and their products are integers,
+    so their sums, and with them which stations get a fit and a slope, are exactly the
+    frame's own; the sums of the values differ from the frame's by rounding only.
 
     Parameters
     ----------
@@ -1846,10 +1810,66 @@ def _smooth_ragged(values: np.ndarray, valid: np.ndarray, rg: _Ragged, size: int
     -------
     fit, slope : ndarray, shape (k, total)
         As :func:`_smooth_valid` (unit, unit per station).
+
+    Raises
+    ------
+    ValueError
+        A frame has no station with a fit (as ``np.interp`` in :func:`_smooth_valid`).
     """
-    y = np.moveaxis(rg.pad(np.where(valid, values, 0.0), 0.0), 0, 1)
-    fit, slope = _smooth_valid_padded(y, rg.pad(valid, False), rg.n, size)
-    return rg.unpad(np.moveaxis(fit, 1, 0)), rg.unpad(np.moveaxis(slope, 1, 0))
+    k, total = values.shape
+    h = size // 2
+    x = rg.local.astype(float)
+    csum = np.zeros((3 + 2 * k, total + 1))  # rows w, w x, w x², w y (k rows), w y x (k rows)
+    body = csum[:, 1:]
+    body[0] = valid
+    np.multiply(body[0], x, out=body[1])
+    np.multiply(body[1], x, out=body[2])
+    np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
+    np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
+    np.cumsum(body, axis=1, out=body)
+    i = np.arange(total)
+    first = rg.start[rg.row]
+    sums = csum[:, np.minimum(i + h, first + rg.n[rg.row] - 1) + 1] - csum[:, np.maximum(i - h, first)]
+    fit, slope, have = _window_line(sums, k, x)
+    if not have.all():
+        _fill_ragged(fit, have, rg)
+    return fit, slope
+
+
+def _fill_ragged(fit: np.ndarray, known: np.ndarray, rg: _Ragged) -> None:
+    """Fill ``fit[:, i]`` where not ``known[i]`` by linear interpolation between the known
+    stations of its frame (their end values beyond them), in place: the per-frame
+    ``np.interp(x[~known], x[known], row[known])`` of :func:`_smooth_valid` for all frames
+    and rows, equal to it.
+
+    The frames' stations are laid on one axis a whole number of stations apart, each frame
+    flanked by a point of its first and of its last known value, so no query interpolates
+    across frames and the differences of positions stay exact.
+
+    Raises
+    ------
+    ValueError
+        A frame has no known station.
+    """
+    i = np.arange(len(known))
+    first = np.minimum.reduceat(np.where(known, i, len(known)), rg.start)
+    last = np.maximum.reduceat(np.where(known, i, -1), rg.start)
+    if (last < 0).any():
+        raise ValueError("a frame has no valid station to interpolate from")
+    pos = rg.local + float(rg.width + 3) * rg.row
+    # each frame's stations between its two flanks: station i at i + 2 row + 1
+    lo_at = rg.start + 2 * np.arange(len(rg.n))
+    hi_at = lo_at + rg.n + 1
+    at = i + 2 * rg.row + 1
+    xp = np.empty(len(known) + 2 * len(rg.n))
+    xp[lo_at], xp[hi_at], xp[at] = pos[rg.start] - 1.0, pos[rg.start] + rg.n, pos
+    use = np.ones(len(xp), dtype=bool)
+    use[at] = known
+    xp, unknown = xp[use], np.flatnonzero(~known)
+    fp = np.empty(len(use))
+    for row in fit:
+        fp[lo_at], fp[hi_at], fp[at] = row[first], row[last], row
+        row[unknown] = np.interp(pos[unknown], xp, fp[use])
 
 
 def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.ndarray) -> None:
