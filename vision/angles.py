@@ -1819,17 +1819,22 @@ def _smooth_ragged(values: np.ndarray, valid: np.ndarray, rg: _Ragged, size: int
     k, total = values.shape
     h = size // 2
     x = rg.local.astype(float)
-    csum = np.zeros((3 + 2 * k, total + 1))  # rows w, w x, w x², w y (k rows), w y x (k rows)
-    body = csum[:, 1:]
+    # running sums from position 0 at column h + 1 (h + 1 zeros before, the total held h after)
+    csum = np.zeros((3 + 2 * k, total + 2 * h + 1))  # rows w, w x, w x², w y (k rows), w y x (k rows)
+    body = csum[:, h + 1 : total + h + 1]
     body[0] = valid
     np.multiply(body[0], x, out=body[1])
     np.multiply(body[1], x, out=body[2])
     np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
     np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
     np.cumsum(body, axis=1, out=body)
-    i = np.arange(total)
-    first = rg.start[rg.row]
-    sums = csum[:, np.minimum(i + h, first + rg.n[rg.row] - 1) + 1] - csum[:, np.maximum(i - h, first)]
+    csum[:, total + h + 1 :] = csum[:, total + h : total + h + 1]
+    sums = csum[:, 2 * h + 1 :] - csum[:, :total]  # over positions i-h .. i+h
+    near_end = np.flatnonzero((rg.local < h) | (rg.local >= rg.n[rg.row] - h))  # windows to clip to the frame
+    if len(near_end):
+        first = rg.start[rg.row[near_end]]
+        hi = np.minimum(near_end + h, first + rg.n[rg.row[near_end]] - 1) + h + 1
+        sums[:, near_end] = csum[:, hi] - csum[:, np.maximum(near_end - h, first) + h]
     fit, slope, have = _window_line(sums, k, x)
     if not have.all():
         _fill_ragged(fit, have, rg)
@@ -1934,7 +1939,9 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     # the stations that hold the array
     arr = _Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
     take = strip.start[arr.row] + arr.local
-    cover = np.take(blurred, take, axis=1).astype(np.float32) * np.take(scale, take) + np.take(shift, take)
+    cover = np.take(blurred, take, axis=1).astype(np.float64)  # = the float32 levels, exactly
+    cover *= np.take(scale, take)  # float64 throughout: a float32 operand costs a cast pass
+    cover += np.take(shift, take)
     seed_a, dark_a = np.take(seed, take), np.take(darkness, take)
     half = np.take(plan.half_mm, lo[arr.row] + arr.local)
     px = du * half * ppm  # px per offset index at each station
