@@ -237,8 +237,11 @@ def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
         np.testing.assert_array_equal(fit, expected)
     xp = 3 * np.arange(8) + 1.5
     fp = rng.normal(size=(n_rows, 8))
-    x = np.arange(30, dtype=float)
+    x = np.concatenate([np.arange(30, dtype=float), xp, rng.uniform(-5.0, 30.0, 20)])  # sample positions too
     np.testing.assert_array_equal(angles_mod._interp_rows(x, xp, fp), [np.interp(x, xp, f) for f in fp])
+    row = rng.integers(0, n_rows, len(x))
+    np.testing.assert_array_equal(angles_mod._interp_ragged(x, row, xp, fp),
+                                  [np.interp(q, xp, fp[r]) for q, r in zip(x, row)])
     dark = rng.random((n_rows, n)) < rng.uniform(0.2, 0.9)
     probe = np.flatnonzero(rng.random(n) < 0.3)
     probe = probe if len(probe) else np.array([0])

@@ -1370,20 +1370,20 @@ def _fluid_levels(
 
 
 def _interp_ragged(x: np.ndarray, row: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """``np.interp(x[i], xp, fp[row[i]])`` for each query ``i``, in one call, equal to it.
+    """``np.interp(x[i], xp, fp[row[i]])`` for each query ``i``, equal to it (finite values).
 
-    The rows are laid on one axis ``span`` apart (more than ``x`` and ``xp`` span, all at least
-    0; positions integers or halves, so their differences stay exact), each flanked by a point of its
-    first and of its last value, so no query interpolates across rows.
+    Each query's bracket ``xp[j] <= x < xp[j + 1]`` is found once, as ``np.interp`` finds it,
+    and the value computed with its arithmetic, ``(fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) *
+    (x - xp[j]) + fp[j]``; beyond the ends, the end values.
 
     Parameters
     ----------
     x : ndarray, shape (q,)
-        Query positions (at least 0).
+        Query positions.
     row : ndarray, shape (q,), int
         Row of ``fp`` of each query.
     xp : ndarray, shape (m,)
-        Increasing sample positions (at least 0), common to all rows.
+        Strictly increasing sample positions, common to all rows.
     fp : ndarray, shape (B, m)
         Sample values per row.
 
@@ -1391,24 +1391,27 @@ def _interp_ragged(x: np.ndarray, row: np.ndarray, xp: np.ndarray, fp: np.ndarra
     -------
     ndarray, shape (q,)
     """
-    n_rows = fp.shape[0]
-    span = float(np.ceil(max(float(x.max()), float(xp.max())))) + 3.0
-    off = span * np.arange(n_rows)[:, None]
-    pos = np.concatenate([off - 1.0, xp[None, :] + off, off + (span - 2.0)], axis=1)
-    val = np.concatenate([fp[:, :1], fp, fp[:, -1:]], axis=1)
-    return np.interp(x + span * row, pos.ravel(), val.ravel())
+    m = len(xp)
+    if m == 1:
+        return fp[row, 0].astype(float)
+    j = np.minimum(np.maximum(np.searchsorted(xp, x, side="right") - 1, 0), m - 2)
+    flat = fp.ravel()
+    at = row * m + j
+    lo, hi = np.take(flat, at), np.take(flat, at + 1)
+    value = (hi - lo) / (xp[j + 1] - xp[j]) * (x - xp[j]) + lo
+    return np.where(x < xp[0], np.take(flat, row * m), np.where(x >= xp[-1], np.take(flat, row * m + m - 1), value))
 
 
 def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """``np.interp(x, xp, fp[b])`` for each row ``b`` of ``fp``, in one call (see
-    :func:`_interp_ragged`), equal to it row by row.
+    """``np.interp(x, xp, fp[b])`` for each row ``b`` of ``fp``, equal to it row by row (see
+    :func:`_interp_ragged`; the brackets are common to all rows).
 
     Parameters
     ----------
     x : ndarray, shape (n,)
-        Query positions (at least 0; integers or halves), common to all rows.
+        Query positions, common to all rows.
     xp : ndarray, shape (m,)
-        Increasing sample positions (the same kind), common to all rows.
+        Strictly increasing sample positions, common to all rows.
     fp : ndarray, shape (B, m)
         Sample values per row.
 
@@ -1416,8 +1419,13 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (B, n)
     """
-    n_rows = fp.shape[0]
-    return _interp_ragged(np.tile(x, n_rows), np.repeat(np.arange(n_rows), len(x)), xp, fp).reshape(n_rows, len(x))
+    m = len(xp)
+    if m == 1:
+        return np.repeat(fp[:, :1].astype(float), len(x), axis=1)
+    j = np.minimum(np.maximum(np.searchsorted(xp, x, side="right") - 1, 0), m - 2)
+    lo, hi = fp[:, j], fp[:, j + 1]
+    value = (hi - lo) / (xp[j + 1] - xp[j]) * (x - xp[j]) + lo
+    return np.where(x < xp[0], fp[:, :1], np.where(x >= xp[-1], fp[:, -1:], value))
 
 
 def _row_quantiles(x: np.ndarray, keep: np.ndarray, q: float) -> np.ndarray:
