@@ -438,7 +438,11 @@ class MeasurePlan:
     map_x, map_y : ndarray, shape (offsets, stations), float32
         Image coordinates (px) of the strip's samples, for ``cv2.remap``.
     coarse_x, coarse_y : ndarray, shape (offsets_c, stations_c), float32
-        The same for every ``cfg.coarse_stride``-th offset and station.
+        The same for every ``cfg.coarse_stride``-th offset and station, from coarse offset
+        ``coarse_row0`` on: only the offsets inside the channel somewhere, and one more either
+        side for the coarse strip's 3×3 blur.
+    coarse_row0 : int
+        The first coarse offset kept (coarse offset ``c`` is fine offset ``c * coarse_stride``).
     coarse_penalty : ndarray, shape (offsets_c, stations_c), float32
         0 on samples of the channel's interior, a large number elsewhere.
     fine_penalty : ndarray, shape (offsets, stations), float32
@@ -470,6 +474,7 @@ class MeasurePlan:
     map_y: np.ndarray
     coarse_x: np.ndarray
     coarse_y: np.ndarray
+    coarse_row0: int
     coarse_penalty: np.ndarray
     fine_penalty: np.ndarray
     u: np.ndarray
@@ -613,12 +618,16 @@ def prepare_measurement(
     limit = np.maximum(1.0 - cfg.wall_margin_px / (half * ppm), cfg.min_interior)
     interior = np.abs(u)[:, None] <= limit[None, :]
     penalty = np.where(interior, 0.0, 1e4).astype(np.float32)
+    # the coarse strip's offsets that are never inside the channel only feed the blur of their
+    # neighbours: keep one either side of those that are (the survey's results do not change)
+    inside_c = np.flatnonzero(interior[::stride, ::stride].any(axis=1))
+    rows = slice(max(int(inside_c[0]) - 1, 0), int(inside_c[-1]) + 2)
     return MeasurePlan(
         pose=pose, image_shape=(height, width), phantom=phantom, array=array, cfg=cfg,
         map_x=map_x, map_y=map_y,
-        coarse_x=np.ascontiguousarray(map_x[::stride, ::stride]),
-        coarse_y=np.ascontiguousarray(map_y[::stride, ::stride]),
-        coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride]), fine_penalty=penalty,
+        coarse_x=np.ascontiguousarray(map_x[::stride, ::stride][rows]),
+        coarse_y=np.ascontiguousarray(map_y[::stride, ::stride][rows]), coarse_row0=rows.start,
+        coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride][rows]), fine_penalty=penalty,
         u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
         in_view=np.all(inside | ~interior, axis=0),
         angles=_angle_table(phantom), r_tip_mm=float(array.radius(0.0)),
@@ -1270,6 +1279,7 @@ def _survey(img: np.ndarray, plan: MeasurePlan) -> _Survey | FrameMeasurement:
     low = coarse + plan.coarse_penalty
     seed_c = low.argmin(axis=0)
     darkest = low[seed_c, np.arange(low.shape[1])]
+    seed_c += plan.coarse_row0
     brightest = cv2.reduce(coarse - plan.coarse_penalty, 0, cv2.REDUCE_MAX)[0]
     pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
     steepest = cv2.reduce(np.abs(coarse[1:] - coarse[:-1]) - pair_penalty, 0, cv2.REDUCE_MAX)[0]
@@ -1471,7 +1481,7 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
     n_rows = len(imgs)
     low = coarse + plan.coarse_penalty
     darkest = low.min(axis=1)
-    seed_c = (low == darkest[:, None, :]).argmax(axis=1)  # = low.argmin(axis=1) (finite values), faster
+    seed_c = (low == darkest[:, None, :]).argmax(axis=1) + plan.coarse_row0  # = argmin (finite values), faster
     brightest = (coarse - plan.coarse_penalty).max(axis=1)
     pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
     steepest = (np.abs(coarse[:, 1:] - coarse[:, :-1]) - pair_penalty).max(axis=1)
