@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import csv
+import dataclasses
 import math
 import os
 import sys
@@ -116,6 +117,10 @@ class ExtractConfig:
     measure_batch_mb : float
         Most grey-frame data (MiB) held for one batch: a batch ends at ``measure_batch``
         frames or at this much, whichever comes first (64 frames of 640x480, 16 of 1920x1080).
+    decoder_threads : int or None
+        Threads of the video decoder (``vision.frames.VideoFrames``); None leaves FFmpeg's
+        default, one per core. :func:`extract_batch` runs its workers' decoders on one thread
+        when this is None, as every core then has a worker of its own.
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -128,6 +133,7 @@ class ExtractConfig:
     recheck_margin_px: float = 0.6
     measure_batch: int = 64
     measure_batch_mb: float = 32.0
+    decoder_threads: int | None = None
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
@@ -136,6 +142,9 @@ class ExtractConfig:
             raise ValueError(f"register_frames must be an integer >= 1, not {self.register_frames!r}")
         if int(self.measure_batch) != self.measure_batch or self.measure_batch < 1:
             raise ValueError(f"measure_batch must be an integer >= 1, not {self.measure_batch!r}")
+        if self.decoder_threads is not None and (int(self.decoder_threads) != self.decoder_threads
+                                                 or self.decoder_threads < 1):
+            raise ValueError(f"decoder_threads must be an integer >= 1 or None, not {self.decoder_threads!r}")
         if not self.measure_batch_mb > 0:
             raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
@@ -528,7 +537,7 @@ def extract_video(
         Unreadable input, or no phantom found in the first frames.
     """
     name = trial_name(path, trial)
-    source = open_frames(path, fps=fps)
+    source = open_frames(path, fps=fps, decoder_threads=cfg.decoder_threads)
     log = ExtractLog()
     rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress, keep_colour=False)]
     t0 = time.perf_counter()
@@ -789,10 +798,12 @@ def _run_one(item: VideoItem, trial: str, out_dir: str, cfg: ExtractConfig, fps:
     """Worker body: :func:`process_video` with every failure turned into a summary row."""
     if _CANCEL_EVENT is not None and _CANCEL_EVENT.is_set():
         return _summary(trial, Path(item.path), "failed", error="cancelled (interrupted)", error_kind="cancelled")
-    if single_thread:
+    if single_thread:  # one worker a core: OpenCV, and the decoder unless told otherwise, on one thread
         import cv2
 
         cv2.setNumThreads(1)
+        if cfg.decoder_threads is None:
+            cfg = dataclasses.replace(cfg, decoder_threads=1)
     t0 = time.perf_counter()
     try:
         return process_video(item.path, out_dir, cfg, fps=item.fps if item.fps is not None else fps,

@@ -9,7 +9,8 @@
    is compared; the first extraction in a process also pays one-off start-up costs (imports,
    first calls), so it is reported beside as the cold figure. The process is pinned to one CPU
    meanwhile (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's,
-   as many as there are cores) that OpenCV's thread setting does not reach;
+   as many as there are cores) that OpenCV's thread setting does not reach, and both decode
+   on one thread (``decoder_threads=1``), the decoder's faster setting on one core;
 2. **per-stage time** (ms/frame) of the warm extraction: decode (+ grey), registration (the
    one-off registration, its measurement plan and the periodic checks) and the measurement's
    stages (survey, edges, centre line, angles);
@@ -221,11 +222,12 @@ def _one_cpu() -> Iterator[int | None]:
         setter(0, before)
 
 
-def _decode_s(path: Path, fps: float | None) -> tuple[int, float, tuple[int, int]]:
-    """Frames, wall time (s) and (height, width) of decoding ``path`` and converting to grey."""
+def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None) -> tuple[int, float, tuple[int, int]]:
+    """Frames, wall time (s) and (height, width) of decoding ``path`` (decoder on
+    ``decoder_threads``, None: its default) and converting to grey."""
     from vision.frames import open_frames, to_gray
 
-    source = open_frames(path, fps=fps)
+    source = open_frames(path, fps=fps, decoder_threads=decoder_threads)
     t0 = time.perf_counter()
     n = 0
     for frame in source:
@@ -266,9 +268,10 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
     import pandas as pd
 
     decodes, extracts = [], []
+    cfg = dataclasses.replace(cfg, decoder_threads=1)  # the decoder's one-core setting, for both
     with _one_cpu() as cpu:
         for _ in range(max(1, int(repeats))):
-            decodes.append(_decode_s(path, fps))
+            decodes.append(_decode_s(path, fps, cfg.decoder_threads))
             extracts.append(_extract_s(path, cfg, fps))
     n, decode_s, shape = min(decodes, key=lambda d: d[1])
     table, cold_s = extracts[0]
@@ -496,7 +499,7 @@ def run_bench(
 def format_bench(result: dict) -> str:
     """The benchmark result as a short human-readable report."""
     cpu = result.get("pinned_cpu")
-    core = f"1 core: pinned to CPU {cpu}" if cpu is not None else "NOT pinned: the decoder may use several cores"
+    core = f"1 core: pinned to CPU {cpu}" if cpu is not None else "1 thread each, NOT pinned to a core"
     lines = [
         f"video          {result['video']}: {result['n_frames']} frames, {result['width_px']}x{result['height_px']} px",
         f"decode only    {result['decode_fps']:8.1f} frames/s ({core}; read + grey)",

@@ -7,6 +7,7 @@ check the plumbing only, and stay valid whatever the real vision code does.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
 import json
 import math
 import multiprocessing as mp
@@ -424,6 +425,21 @@ def test_measure_batch_validation():
         ExtractConfig(measure_batch=0)
     with pytest.raises(ValueError, match="measure_batch_mb"):
         ExtractConfig(measure_batch_mb=0.0)
+    with pytest.raises(ValueError, match="decoder_threads"):
+        ExtractConfig(decoder_threads=0)
+
+
+def test_pool_workers_decode_on_one_thread(monkeypatch, tmp_path):
+    """A worker of a pool (one a core) runs the decoder on one thread unless told otherwise;
+    a serial run keeps the decoder's default."""
+    seen = []
+    monkeypatch.setattr(batch, "process_video", lambda path, out, cfg, **kw: seen.append(cfg.decoder_threads) or {})
+    item = VideoItem(str(tmp_path / "v.mp4"))
+    cfg = ExtractConfig(measure=None, registration=None)
+    batch._run_one(item, "v", str(tmp_path), cfg, None, False, True, False)
+    batch._run_one(item, "v", str(tmp_path), dataclasses.replace(cfg, decoder_threads=3), None, False, True, False)
+    batch._run_one(item, "v", str(tmp_path), cfg, None, False, False, False)
+    assert seen == [1, 3, None]
 
 
 def test_batched_measurement_equals_one_at_a_time(tmp_path):
@@ -435,9 +451,10 @@ def test_batched_measurement_equals_one_at_a_time(tmp_path):
     video = render_bench_video(tmp_path / "r.mp4", n_frames=30, seed=3)
     one, _ = extract_video(video, ExtractConfig(measure_batch=1, recheck_every=7))
     eight, _ = extract_video(video, ExtractConfig(measure_batch=8, recheck_every=7))
-    capped, _ = extract_video(video, ExtractConfig(measure_batch=64, measure_batch_mb=1.0, recheck_every=7))
+    capped, _ = extract_video(video, ExtractConfig(measure_batch=64, measure_batch_mb=1.0, recheck_every=7,
+                                                   decoder_threads=1))
     cols = [c for c in one.columns if not c.endswith("_ms")]
     pd.testing.assert_frame_equal(one[cols], eight[cols])
-    pd.testing.assert_frame_equal(one[cols], capped[cols])
+    pd.testing.assert_frame_equal(one[cols], capped[cols])  # the decoder's threads change nothing either
     assert one["ok"].sum() >= 25 and len(eight.attrs["checks"]) == len(one.attrs["checks"]) >= 3
     assert eight.attrs["timing_s"]["measure"] > 0 and "measure.survey" in eight.attrs["timing_s"]

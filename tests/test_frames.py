@@ -54,6 +54,17 @@ def test_mp4_streams_every_frame_with_decoder_times(mp4):
     assert len(src) == 20 and src.count() == 20 and not src.warnings
 
 
+def test_decoder_threads_give_the_same_frames(mp4):
+    """The decoder's thread count is a speed setting only: one thread decodes the same images."""
+    one = open_frames(mp4, decoder_threads=1)
+    if one._open().get(cv2.CAP_PROP_N_THREADS) > 0:  # backends that report it
+        assert one._open().get(cv2.CAP_PROP_N_THREADS) == 1
+    assert all(np.array_equal(a.image, b.image) and a.time_s == b.time_s for a, b in zip(one, open_frames(mp4)))
+    for bad in (0, -1, 1.5):
+        with pytest.raises(ValueError, match="decoder_threads"):
+            open_frames(mp4, decoder_threads=bad)
+
+
 def test_mp4_random_access_matches_iteration(mp4):
     src = open_frames(mp4)
     for i in (0, 7, 13, 19):
