@@ -223,12 +223,13 @@ def _one_cpu() -> Iterator[int | None]:
 
 
 def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None) -> tuple[int, float, tuple[int, int]]:
-    """Frames, wall time (s) and (height, width) of decoding ``path`` (decoder on
-    ``decoder_threads``, None: its default) and converting to grey."""
+    """Frames, wall time (s) and (height, width) of opening ``path`` (as the extraction does,
+    which reads its first frame for the size), decoding it (decoder on ``decoder_threads``,
+    None: its default) and converting to grey."""
     from vision.frames import open_frames, to_gray
 
-    source = open_frames(path, fps=fps, decoder_threads=decoder_threads)
     t0 = time.perf_counter()
+    source = open_frames(path, fps=fps, decoder_threads=decoder_threads)
     n = 0
     for frame in source:
         to_gray(frame.image)
