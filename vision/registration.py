@@ -677,10 +677,14 @@ class _TemplateStack:
 
     size: int
     rotations: np.ndarray  # (J,) rotation_rad of each template
-    stack_real: np.ndarray  # (2 size², 2J) float32: [real parts; imaginary parts], mirror-major
+    # (K, 2J) float32, mirror-major columns: the rows of [real parts; imaginary parts] (2 size²
+    # of them) on which some template is non-zero (K is about 70 % of them; the others would
+    # only add zeros to the scores)
+    stack_real: np.ndarray
+    patch_index: np.ndarray  # (K,) where those rows are in a (size, size, 2) patch, flattened
     mean: np.ndarray  # (2, size, size, 2) float32: rotation-averaged template of each mirror
     # memo of the search's per-image-size work, filled by _coarse_plan (read-only values):
-    # field shapes -> (block offsets, DFT size, spectra of ``mean`` at that size)
+    # field shapes -> (block offsets, DFT size, _pair_spectra of ``mean``'s spectra at that size)
     plans: dict = field(default_factory=dict, compare=False, repr=False)
 
 
@@ -718,8 +722,11 @@ def _template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack
     images[..., 0] = re * phase_c - im * phase_s
     images[..., 1] = re * phase_s + im * phase_c
     flat = images.reshape(2 * len(rotations), size * size, 2)
-    stack_real = np.ascontiguousarray(np.hstack([flat[..., 0], flat[..., 1]]).T)
-    return _TemplateStack(size, rotations, stack_real, np.ascontiguousarray(images.mean(axis=1)))
+    stack_real = np.hstack([flat[..., 0], flat[..., 1]]).T
+    support = np.flatnonzero(np.any(stack_real != 0, axis=1))  # row = channel * size² + pixel
+    patch_index = (support % (size * size)) * 2 + support // (size * size)
+    mean = np.ascontiguousarray(images.mean(axis=1))
+    return _TemplateStack(size, rotations, np.ascontiguousarray(stack_real[support]), patch_index, mean)
 
 
 _TEMPLATE_CACHE: dict[tuple, _TemplateStack] = {}
@@ -734,7 +741,7 @@ def _cached_template_stack(model: WallModel, cfg: RegistrationConfig) -> _Templa
     tpl = _TEMPLATE_CACHE.get(key)
     if tpl is None:
         tpl = _template_stack(model, cfg)
-        for a in (tpl.rotations, tpl.stack_real, tpl.mean):
+        for a in (tpl.rotations, tpl.stack_real, tpl.patch_index, tpl.mean):
             a.flags.writeable = False
         _TEMPLATE_CACHE.clear()
         _TEMPLATE_CACHE[key] = tpl
@@ -824,7 +831,7 @@ def _mosaic_layout(shapes: list[tuple[int, int]], gap: int) -> tuple[list[tuple[
 
 
 def _template_spectra(templates: np.ndarray, rows: int, cols: int) -> list[np.ndarray]:
-    """DFTs of ``templates`` zero-padded to ``rows x cols`` (px), for :func:`_circular_ccorr`.
+    """DFTs of ``templates`` zero-padded to ``rows x cols`` (px).
 
     Parameters
     ----------
@@ -835,57 +842,81 @@ def _template_spectra(templates: np.ndarray, rows: int, cols: int) -> list[np.nd
 
     Returns
     -------
-    list of ndarray of float32, shape (rows, cols, 2)
-        One complex spectrum per template.
+    list of ndarray of complex64, shape (rows, cols)
+        One spectrum per template.
     """
     padded = np.zeros((rows, cols, 2), np.float32)
     spectra = []
     for t in templates:
         padded[: t.shape[0], : t.shape[1]] = t
-        spectra.append(cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT))
+        spectra.append(cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT).view(np.complex64)[..., 0])
     return spectra
 
 
-def _circular_ccorr(image: np.ndarray, template_spectra: list[np.ndarray]) -> np.ndarray:
-    """Largest over templates of their circular cross-correlation with ``image`` (by DFT).
+def _reversed_conj(spectrum: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out[k] = conj(spectrum[-k])`` for a 2-D spectrum (indices modulo its size, both axes)."""
+    np.conjugate(spectrum[0, 0], out=out[0, 0:1])
+    np.conjugate(spectrum[0, :0:-1], out=out[0, 1:])
+    np.conjugate(spectrum[:0:-1, 0], out=out[1:, 0])
+    np.conjugate(spectrum[:0:-1, :0:-1], out=out[1:, 1:])
+    return out
+
+
+def _pair_spectra(t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The factors ``A``, ``B`` with which :func:`_circular_ccorr_pair` correlates an image
+    with two templates of spectra ``t0``, ``t1`` (complex64, (H, W)) by one inverse DFT.
+
+    With ``Z`` the image's spectrum, template m's circular cross-correlation is
+    ``IDFT(Z conj(T_m))`` and its real part the IDFT of the Hermitian part
+    ``(P(k) + conj(P(-k))) / 2`` of ``P = Z conj(T_m)``. The two real parts are therefore the
+    real and imaginary parts of the IDFT of ``Z(k) A(k) + conj(Z(-k)) B(k)``, with
+    ``A = (conj(T_0) + i conj(T_1)) / 2`` and ``B(k) = (T_0(-k) + i T_1(-k)) / 2``.
+    """
+    t0, t1 = t0.astype(np.complex128), t1.astype(np.complex128)
+    a = 0.5 * (np.conj(t0) + 1j * np.conj(t1))
+    # conj(C(-k)) with C = conj(T_0 + i T_1) / 2 is (T_0(-k) + i T_1(-k)) / 2
+    b = _reversed_conj(0.5 * np.conj(t0 + 1j * t1), np.empty_like(a))
+    return a.astype(np.complex64), b.astype(np.complex64)
+
+
+def _circular_ccorr_pair(image: np.ndarray, factors: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Larger of two templates' circular cross-correlations with ``image`` (by DFT).
 
     ``out[u, v] = max_m sum Re(image[(u + i) mod H, (v + j) mod W] · conj(t_m[i, j]))``, the
     sum running over the template's pixels and the two channels being the real and imaginary
     parts; where a template placed at ``(u, v)`` does not wrap, this is ``cv2.matchTemplate``
-    with ``TM_CCORR`` (up to float rounding).
+    with ``TM_CCORR`` (up to float rounding). Both templates take one forward and one
+    inverse DFT of the image's size (:func:`_pair_spectra`).
 
     Parameters
     ----------
     image : ndarray of float32, shape (H, W, 2)
         Complex image (real, imaginary), C-contiguous; overwritten (its memory holds the
         spectrum: every new array of this size costs more in page faults than its arithmetic).
-    template_spectra : list of ndarray of float32, shape (H, W, 2)
-        The templates' spectra at the image's size (:func:`_template_spectra`).
+    factors : tuple of ndarray of complex64, shape (H, W)
+        :func:`_pair_spectra` of the templates' spectra at the image's size.
 
     Returns
     -------
     ndarray of float32, shape (H, W)
     """
-    spectrum = cv2.dft(image, dst=image, flags=cv2.DFT_COMPLEX_OUTPUT)
-    out = None
-    corr = None  # each template's product and its inverse DFT, in place; the last in the spectrum
-    for k, t_spectrum in enumerate(template_spectra):
-        if k == len(template_spectra) - 1:
-            corr = spectrum  # its last use
-        elif corr is None:
-            corr = np.empty_like(spectrum)
-        cv2.mulSpectrums(spectrum, t_spectrum, 0, corr, conjB=True)
-        cv2.dft(corr, corr, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
-        out = corr[..., 0].copy() if out is None else np.maximum(out, corr[..., 0], out=out)
-    assert out is not None
-    return out
+    a, b = factors
+    cv2.dft(image, dst=image, flags=cv2.DFT_COMPLEX_OUTPUT)
+    z = image.view(np.complex64)[..., 0]
+    mirrored = _reversed_conj(z, np.empty_like(z))
+    mirrored *= b
+    z *= a
+    z += mirrored
+    cv2.dft(image, dst=image, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
+    return np.maximum(image[..., 0], image[..., 1])
 
 
 def _coarse_plan(
     tpl: _TemplateStack, shapes: list[tuple[int, int]]
-) -> tuple[list[tuple[int, int]], tuple[int, int], list[np.ndarray]]:
+) -> tuple[list[tuple[int, int]], tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """Mosaic layout (:func:`_mosaic_layout`, gap a template size) of fields of ``shapes``
-    ((rows, cols), px) and the spectra of the rotation-averaged templates at its DFT size.
+    ((rows, cols), px) and the spectra of the two mirrors' rotation-averaged templates at its
+    DFT size, as :func:`_pair_spectra`.
 
     Both depend only on the image size and the settings, so they are memoised on ``tpl``
     (every video of a batch has the same size); the spectra are read-only.
@@ -894,7 +925,7 @@ def _coarse_plan(
     plan = tpl.plans.get(key)
     if plan is None:
         offsets, (rows, cols) = _mosaic_layout(list(shapes), gap=tpl.size)
-        spectra = _template_spectra(tpl.mean, rows, cols)
+        spectra = _pair_spectra(*_template_spectra(tpl.mean, rows, cols))
         for a in spectra:
             a.flags.writeable = False
         if len(tpl.plans) >= 4:
@@ -925,10 +956,10 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     those peaks by one matrix product of image patches with the template stack.
 
     The shrunk fields of all scales are laid out in one mosaic, a template size of zeros
-    around each, so that one DFT of the mosaic and, per mirror, one product with the
-    template's spectrum and one inverse DFT give every scale's detector: the values are those
-    of a separate ``cv2.matchTemplate`` on each field zero-padded by a template size (up to
-    float rounding), at a fraction of the cost.
+    around each, so that one DFT of the mosaic, a product with the two mirrors' template
+    spectra and one inverse DFT (:func:`_circular_ccorr_pair`) give every scale's detector:
+    the values are those of a separate ``cv2.matchTemplate`` on each field zero-padded by a
+    template size (up to float rounding), at a fraction of the cost.
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
@@ -942,7 +973,7 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     mosaic = np.zeros((rows, cols, 2), np.float32)
     for (z, _, _), (oy, ox) in zip(fields, offsets):
         mosaic[oy : oy + z.shape[0], ox : ox + z.shape[1]] = z
-    detector = _circular_ccorr(mosaic, spectra)
+    detector = _circular_ccorr_pair(mosaic, spectra)
     spots = []  # (scale, shrink x, shrink y, centre x, centre y) per patch
     windows = []  # (field, top row, left column) per patch
     for s, (z, fx, fy), (oy, ox) in zip(scales, fields, offsets):
@@ -960,8 +991,8 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     patches = np.zeros((len(windows), size, size, 2), np.float32)
     for patch, (z, top, left) in zip(patches, windows):
         _copy_window(patch, z, top, left)
-    # each patch as one row: its real parts, then its imaginary parts
-    rows = np.ascontiguousarray(np.moveaxis(patches, 3, 1)).reshape(len(windows), 2 * size * size)
+    # each patch as one row: its values on the rows of the template stack
+    rows = patches.reshape(len(windows), 2 * size * size)[:, tpl.patch_index]
     scores = rows @ tpl.stack_real  # (n_spots, 2J)
     best = np.argmax(scores, axis=1)
     best_scores = scores[np.arange(len(scores)), best].tolist()
