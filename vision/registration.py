@@ -60,7 +60,7 @@ from .edges import (
     edges_from_gradients,
     gradients,
     doubled_angles,
-    sigma_from_gradients,
+    sigma_from_magnitude,
     splat_vector_sets,
     subpixel_edges,
     to_gray,
@@ -551,14 +551,19 @@ def _median_scaled_uint8(frames: list[np.ndarray], gains: list[float], block_row
 
 
 def _median3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Element-wise median of three arrays (min/max only, so exact)."""
-    return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+    """Element-wise median of three arrays without NaNs (min/max only, so exact).
+
+    ``cv2.min``/``cv2.max`` (about a fifth faster than NumPy's on blocks of frame rows) take
+    equal-shaped 2-D arrays, as the frames are.
+    """
+    return cv2.max(cv2.min(a, b), cv2.min(cv2.max(a, b), c))
 
 
 def _median_frames(stack: np.ndarray | list[np.ndarray]) -> np.ndarray:
     """Per-pixel median over the first axis of ``stack`` (grey levels), equal to ``np.median``.
 
-    ``stack`` is an ``(n, ...)`` array or a list of ``n`` equal-shaped arrays.
+    ``stack`` is an ``(n, h, w)`` array or a list of ``n`` equal-shaped ``(h, w)`` arrays
+    (grey frames or blocks of their rows, without NaNs).
 
     Three and five frames (the registration's default) take a min/max selection network (a
     dozen passes over the image, no sort); other odd counts one ``np.partition`` (the median
@@ -571,7 +576,7 @@ def _median_frames(stack: np.ndarray | list[np.ndarray]) -> np.ndarray:
         return _median3(stack[0], stack[1], stack[2])
     if n == 5:  # the 2nd and 3rd of the first four, then the median of those and the fifth
         a, b, c, d, e = stack
-        return _median3(np.maximum(np.minimum(a, b), np.minimum(c, d)), np.minimum(np.maximum(a, b), np.maximum(c, d)), e)
+        return _median3(cv2.max(cv2.min(a, b), cv2.min(c, d)), cv2.min(cv2.max(a, b), cv2.max(c, d)), e)
     if n % 2 == 0:
         return np.median(stack, axis=0)
     return np.partition(stack, n // 2, axis=0)[n // 2]
@@ -587,20 +592,24 @@ class _Edges:
     signed: np.ndarray  # (h, w, 2) smoothed field of signed unit gradient directions
 
 
-def _gradients_for_canny(gray: np.ndarray, sigma_px: float | None) -> tuple[np.ndarray, np.ndarray, float]:
+def _gradients_for_canny(
+    gray: np.ndarray, sigma_px: float | None
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | None]:
     """Derivatives (grey levels per px) of ``gray`` smoothed for Canny, and the smoothing (px).
 
     ``sigma_px`` None picks the smoothing from the noise (:func:`vision.edges.auto_sigma`);
-    the 1 px derivatives that takes are reused when it keeps 1 px (clean frames) rather than
-    computed again.
+    the 1 px derivatives that takes, and their magnitude, are reused when it keeps 1 px
+    (clean frames) rather than computed again. The last item is ``cv2.magnitude(gx, gy)``
+    when it was computed on the way, else None.
     """
     if sigma_px is None:
         gx, gy = gradients(gray, 1.0)
-        sigma_px = sigma_from_gradients(gx, gy)
+        magnitude = cv2.magnitude(gx, gy)
+        sigma_px = sigma_from_magnitude(magnitude)
         if sigma_px == 1.0:
-            return gx, gy, sigma_px
+            return gx, gy, sigma_px, magnitude
     gx, gy = gradients(gray, sigma_px)
-    return gx, gy, float(sigma_px)
+    return gx, gy, float(sigma_px), None
 
 
 def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
@@ -608,15 +617,18 @@ def _prepare_edges(em: EdgeMap, levels: int) -> _Edges:
     pts, nrm = subpixel_edges(em)
     # orientation_field(pts, nrm, ...) and splat_vectors(pts, nrm, ...) in one pass
     fld, signed = splat_vector_sets(pts, [doubled_angles(nrm), nrm], em.shape)
-    pyramid = [cv2.GaussianBlur(fld, (0, 0), 0.7)]
-    cur = fld
+    # each level is shrunk from the unsmoothed one above; all are smoothed in place at the
+    # end (new full-size images cost more in page faults than the filtering itself)
+    pyramid = [fld]
     for _ in range(levels):
-        h, w = cur.shape[:2]
+        h, w = pyramid[-1].shape[:2]
         if min(h, w) < 16:
             break
-        cur = cv2.resize(cur, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA) * 2.0
-        pyramid.append(cv2.GaussianBlur(cur, (0, 0), 0.7))
-    signed = cv2.GaussianBlur(signed, (0, 0), 0.7)
+        cur = cv2.resize(pyramid[-1], ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA)
+        cur *= 2.0
+        pyramid.append(cur)
+    for image in pyramid + [signed]:
+        cv2.GaussianBlur(image, (0, 0), 0.7, dst=image)
     return _Edges(em, pts, pyramid, signed)
 
 
@@ -665,10 +677,14 @@ class _TemplateStack:
 
     size: int
     rotations: np.ndarray  # (J,) rotation_rad of each template
-    stack_real: np.ndarray  # (2 size², 2J) float32: [real parts; imaginary parts], mirror-major
+    # (K, 2J) float32, mirror-major columns: the rows of [real parts; imaginary parts] (2 size²
+    # of them) on which some template is non-zero (K is about 70 % of them; the others would
+    # only add zeros to the scores)
+    stack_real: np.ndarray
+    patch_index: np.ndarray  # (K,) where those rows are in a (size, size, 2) patch, flattened
     mean: np.ndarray  # (2, size, size, 2) float32: rotation-averaged template of each mirror
     # memo of the search's per-image-size work, filled by _coarse_plan (read-only values):
-    # field shapes -> (block offsets, DFT size, spectra of ``mean`` at that size)
+    # field shapes -> (block offsets, DFT size, _pair_spectra of ``mean``'s spectra at that size)
     plans: dict = field(default_factory=dict, compare=False, repr=False)
 
 
@@ -706,8 +722,11 @@ def _template_stack(model: WallModel, cfg: RegistrationConfig) -> _TemplateStack
     images[..., 0] = re * phase_c - im * phase_s
     images[..., 1] = re * phase_s + im * phase_c
     flat = images.reshape(2 * len(rotations), size * size, 2)
-    stack_real = np.ascontiguousarray(np.hstack([flat[..., 0], flat[..., 1]]).T)
-    return _TemplateStack(size, rotations, stack_real, np.ascontiguousarray(images.mean(axis=1)))
+    stack_real = np.hstack([flat[..., 0], flat[..., 1]]).T
+    support = np.flatnonzero(np.any(stack_real != 0, axis=1))  # row = channel * size² + pixel
+    patch_index = (support % (size * size)) * 2 + support // (size * size)
+    mean = np.ascontiguousarray(images.mean(axis=1))
+    return _TemplateStack(size, rotations, np.ascontiguousarray(stack_real[support]), patch_index, mean)
 
 
 _TEMPLATE_CACHE: dict[tuple, _TemplateStack] = {}
@@ -722,7 +741,7 @@ def _cached_template_stack(model: WallModel, cfg: RegistrationConfig) -> _Templa
     tpl = _TEMPLATE_CACHE.get(key)
     if tpl is None:
         tpl = _template_stack(model, cfg)
-        for a in (tpl.rotations, tpl.stack_real, tpl.mean):
+        for a in (tpl.rotations, tpl.stack_real, tpl.patch_index, tpl.mean):
             a.flags.writeable = False
         _TEMPLATE_CACHE.clear()
         _TEMPLATE_CACHE[key] = tpl
@@ -732,14 +751,16 @@ def _cached_template_stack(model: WallModel, cfg: RegistrationConfig) -> _Templa
 def _peaks(score: np.ndarray, n: int, radius: int) -> list[tuple[int, int]]:
     """Up to ``n`` local maxima (row, col) of ``score``, at least ``radius`` apart."""
     k = 2 * radius + 1
-    score = np.ascontiguousarray(score, dtype=np.float32)
+    score = np.asarray(score, dtype=np.float32)  # a view with padded rows is fine
     dil = cv2.dilate(score, np.ones((k, k), np.uint8))
-    flat = np.flatnonzero((score >= dil) & (score > 0))  # row-major order, as np.argwhere
+    flat = np.flatnonzero(score >= dil)  # row-major order, as np.argwhere
+    values = dil.reshape(-1)[flat]  # = the score there (a local maximum is its own dilation)
+    flat, values = flat[values > 0], values[values > 0]  # the positive ones (few: no full-size test)
     if len(flat) == 0:
         return []
     width = score.shape[1]
     out: list[tuple[int, int]] = []
-    for i in np.argsort(-score.reshape(-1)[flat]).tolist():
+    for i in np.argsort(-values).tolist():
         r, c = divmod(int(flat[i]), width)
         if all(max(abs(r - r2), abs(c - c2)) > radius for r2, c2 in out):
             out.append((r, c))
@@ -810,7 +831,7 @@ def _mosaic_layout(shapes: list[tuple[int, int]], gap: int) -> tuple[list[tuple[
 
 
 def _template_spectra(templates: np.ndarray, rows: int, cols: int) -> list[np.ndarray]:
-    """DFTs of ``templates`` zero-padded to ``rows x cols`` (px), for :func:`_circular_ccorr`.
+    """DFTs of ``templates`` zero-padded to ``rows x cols`` (px).
 
     Parameters
     ----------
@@ -821,52 +842,81 @@ def _template_spectra(templates: np.ndarray, rows: int, cols: int) -> list[np.nd
 
     Returns
     -------
-    list of ndarray of float32, shape (rows, cols, 2)
-        One complex spectrum per template.
+    list of ndarray of complex64, shape (rows, cols)
+        One spectrum per template.
     """
     padded = np.zeros((rows, cols, 2), np.float32)
     spectra = []
     for t in templates:
         padded[: t.shape[0], : t.shape[1]] = t
-        spectra.append(cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT))
+        spectra.append(cv2.dft(padded, flags=cv2.DFT_COMPLEX_OUTPUT).view(np.complex64)[..., 0])
     return spectra
 
 
-def _circular_ccorr(image: np.ndarray, template_spectra: list[np.ndarray]) -> np.ndarray:
-    """Largest over templates of their circular cross-correlation with ``image`` (by DFT).
+def _reversed_conj(spectrum: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out[k] = conj(spectrum[-k])`` for a 2-D spectrum (indices modulo its size, both axes)."""
+    np.conjugate(spectrum[0, 0], out=out[0, 0:1])
+    np.conjugate(spectrum[0, :0:-1], out=out[0, 1:])
+    np.conjugate(spectrum[:0:-1, 0], out=out[1:, 0])
+    np.conjugate(spectrum[:0:-1, :0:-1], out=out[1:, 1:])
+    return out
+
+
+def _pair_spectra(t0: np.ndarray, t1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The factors ``A``, ``B`` with which :func:`_circular_ccorr_pair` correlates an image
+    with two templates of spectra ``t0``, ``t1`` (complex64, (H, W)) by one inverse DFT.
+
+    With ``Z`` the image's spectrum, template m's circular cross-correlation is
+    ``IDFT(Z conj(T_m))`` and its real part the IDFT of the Hermitian part
+    ``(P(k) + conj(P(-k))) / 2`` of ``P = Z conj(T_m)``. The two real parts are therefore the
+    real and imaginary parts of the IDFT of ``Z(k) A(k) + conj(Z(-k)) B(k)``, with
+    ``A = (conj(T_0) + i conj(T_1)) / 2`` and ``B(k) = (T_0(-k) + i T_1(-k)) / 2``.
+    """
+    t0, t1 = t0.astype(np.complex128), t1.astype(np.complex128)
+    a = 0.5 * (np.conj(t0) + 1j * np.conj(t1))
+    # conj(C(-k)) with C = conj(T_0 + i T_1) / 2 is (T_0(-k) + i T_1(-k)) / 2
+    b = _reversed_conj(0.5 * np.conj(t0 + 1j * t1), np.empty_like(a))
+    return a.astype(np.complex64), b.astype(np.complex64)
+
+
+def _circular_ccorr_pair(image: np.ndarray, factors: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Larger of two templates' circular cross-correlations with ``image`` (by DFT).
 
     ``out[u, v] = max_m sum Re(image[(u + i) mod H, (v + j) mod W] · conj(t_m[i, j]))``, the
     sum running over the template's pixels and the two channels being the real and imaginary
     parts; where a template placed at ``(u, v)`` does not wrap, this is ``cv2.matchTemplate``
-    with ``TM_CCORR`` (up to float rounding).
+    with ``TM_CCORR`` (up to float rounding). Both templates take one forward and one
+    inverse DFT of the image's size (:func:`_pair_spectra`).
 
     Parameters
     ----------
     image : ndarray of float32, shape (H, W, 2)
-        Complex image (real, imaginary).
-    template_spectra : list of ndarray of float32, shape (H, W, 2)
-        The templates' spectra at the image's size (:func:`_template_spectra`).
+        Complex image (real, imaginary), C-contiguous; overwritten (its memory holds the
+        spectrum: every new array of this size costs more in page faults than its arithmetic).
+    factors : tuple of ndarray of complex64, shape (H, W)
+        :func:`_pair_spectra` of the templates' spectra at the image's size.
 
     Returns
     -------
     ndarray of float32, shape (H, W)
     """
-    spectrum = cv2.dft(np.ascontiguousarray(image), flags=cv2.DFT_COMPLEX_OUTPUT)
-    product, corr = np.empty_like(spectrum), np.empty_like(spectrum)  # reused for every template
-    out = None
-    for t_spectrum in template_spectra:
-        cv2.mulSpectrums(spectrum, t_spectrum, 0, product, conjB=True)
-        cv2.dft(product, corr, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
-        out = corr[..., 0].copy() if out is None else np.maximum(out, corr[..., 0], out=out)
-    assert out is not None
-    return out
+    a, b = factors
+    cv2.dft(image, dst=image, flags=cv2.DFT_COMPLEX_OUTPUT)
+    z = image.view(np.complex64)[..., 0]
+    mirrored = _reversed_conj(z, np.empty_like(z))
+    mirrored *= b
+    z *= a
+    z += mirrored
+    cv2.dft(image, dst=image, flags=cv2.DFT_INVERSE | cv2.DFT_SCALE)
+    return np.maximum(image[..., 0], image[..., 1])
 
 
 def _coarse_plan(
     tpl: _TemplateStack, shapes: list[tuple[int, int]]
-) -> tuple[list[tuple[int, int]], tuple[int, int], list[np.ndarray]]:
+) -> tuple[list[tuple[int, int]], tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """Mosaic layout (:func:`_mosaic_layout`, gap a template size) of fields of ``shapes``
-    ((rows, cols), px) and the spectra of the rotation-averaged templates at its DFT size.
+    ((rows, cols), px) and the spectra of the two mirrors' rotation-averaged templates at its
+    DFT size, as :func:`_pair_spectra`.
 
     Both depend only on the image size and the settings, so they are memoised on ``tpl``
     (every video of a batch has the same size); the spectra are read-only.
@@ -875,13 +925,25 @@ def _coarse_plan(
     plan = tpl.plans.get(key)
     if plan is None:
         offsets, (rows, cols) = _mosaic_layout(list(shapes), gap=tpl.size)
-        spectra = _template_spectra(tpl.mean, rows, cols)
+        spectra = _pair_spectra(*_template_spectra(tpl.mean, rows, cols))
         for a in spectra:
             a.flags.writeable = False
         if len(tpl.plans) >= 4:
             tpl.plans.clear()
         plan = tpl.plans[key] = (offsets, (rows, cols), spectra)
     return plan
+
+
+def _copy_window(out: np.ndarray, image: np.ndarray, top: int, left: int) -> None:
+    """Copy ``image[top : top + rows, left : left + cols]`` (px; ``(rows, cols)`` the shape of
+    ``out``) into ``out`` where the window overlaps ``image``; the rest of ``out`` is left
+    as it is (zeros, for a window of ``image`` padded with zeros on every side)."""
+    rows, cols = out.shape[:2]
+    h, w = image.shape[:2]
+    r0, r1 = max(top, 0), min(top + rows, h)
+    c0, c1 = max(left, 0), min(left + cols, w)
+    if r0 < r1 and c0 < c1:
+        out[r0 - top : r1 - top, c0 - left : c1 - left] = image[r0:r1, c0:c1]
 
 
 def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> list[_Proposal]:
@@ -894,10 +956,10 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     those peaks by one matrix product of image patches with the template stack.
 
     The shrunk fields of all scales are laid out in one mosaic, a template size of zeros
-    around each, so that one DFT of the mosaic and, per mirror, one product with the
-    template's spectrum and one inverse DFT give every scale's detector: the values are those
-    of a separate ``cv2.matchTemplate`` on each field zero-padded by a template size (up to
-    float rounding), at a fraction of the cost.
+    around each, so that one DFT of the mosaic, a product with the two mirrors' template
+    spectra and one inverse DFT (:func:`_circular_ccorr_pair`) give every scale's detector:
+    the values are those of a separate ``cv2.matchTemplate`` on each field zero-padded by a
+    template size (up to float rounding), at a fraction of the cost.
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
@@ -907,30 +969,31 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     fields = [_shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm) for s in scales]
     offsets, (rows, cols), spectra = _coarse_plan(tpl, [z.shape[:2] for z, _, _ in fields])
     # the DFT wraps around: the zeros before the first shelf and column stand in for those
-    # after the last; the extra template size of zeros serves the patches cut below
-    mosaic = np.zeros((rows + size, cols + size, 2), np.float32)
+    # after the last
+    mosaic = np.zeros((rows, cols, 2), np.float32)
     for (z, _, _), (oy, ox) in zip(fields, offsets):
         mosaic[oy : oy + z.shape[0], ox : ox + z.shape[1]] = z
-    detector = _circular_ccorr(mosaic[:rows, :cols], spectra)
+    detector = _circular_ccorr_pair(mosaic, spectra)
     spots = []  # (scale, shrink x, shrink y, centre x, centre y) per patch
-    patches = []
+    windows = []  # (field, top row, left column) per patch
     for s, (z, fx, fy), (oy, ox) in zip(scales, fields, offsets):
         hk, wk = z.shape[:2]
         # this scale's field zero-padded by a template on each side (the spiral centre may
-        # lie outside the frame) is mosaic[y0 : oy + hk + size, x0 : ox + wk + size]
+        # lie outside the frame) is the mosaic's [y0 : oy + hk + size, x0 : ox + wk + size]
         y0, x0 = oy - size, ox - size
-        # its detector[u, v]: template's top-left at padded (u, v), its centre at image
-        # (v + c - size, u + c - size)
+        # its detector[u, v]: template's top-left at padded (u, v), i.e. at field (v - size,
+        # u - size), its centre at image (v + c - size, u + c - size)
         for u, v in _peaks(detector[y0 : oy + hk + 1, x0 : ox + wk + 1], cfg.coarse_peaks_per_scale, radius=2):
-            patches.append(mosaic[y0 + u : y0 + u + size, x0 + v : x0 + v + size])
+            windows.append((z, u - size, v - size))
             spots.append((float(s), fx, fy, v + c - size, u + c - size))
-    if not patches:
+    if not windows:
         return []
-    # each patch as one row: its real parts, then its imaginary parts
-    rows = np.empty((len(patches), 2, size, size), np.float32)
-    for row, patch in zip(rows, patches):
-        row[...] = np.moveaxis(patch, 2, 0)
-    scores = rows.reshape(len(patches), 2 * size * size) @ tpl.stack_real  # (n_spots, 2J)
+    patches = np.zeros((len(windows), size, size, 2), np.float32)
+    for patch, (z, top, left) in zip(patches, windows):
+        _copy_window(patch, z, top, left)
+    # each patch as one row: its values on the rows of the template stack
+    rows = patches.reshape(len(windows), 2 * size * size)[:, tpl.patch_index]
+    scores = rows @ tpl.stack_real  # (n_spots, 2J)
     best = np.argmax(scores, axis=1)
     best_scores = scores[np.arange(len(scores)), best].tolist()
     proposals: list[_Proposal] = []
@@ -977,11 +1040,10 @@ def _profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) 
 
     Returns an ``(n, len(t), 2)`` float32 array (zero outside the image).
     """
-    sx = np.multiply.outer(nrm[:, 0], t)  # = pts + t * nrm, with one temporary less
-    sx += pts[:, 0:1]
-    sy = np.multiply.outer(nrm[:, 1], t)
-    sy += pts[:, 1:2]
-    sx, sy = sx.astype(np.float32), sy.astype(np.float32)
+    shape = (len(pts), len(t))
+    # pts + t * nrm summed in float64 and rounded once to float32 (the maps remap takes)
+    sx = np.add(np.multiply.outer(nrm[:, 0], t), pts[:, 0:1], out=np.empty(shape, np.float32))
+    sy = np.add(np.multiply.outer(nrm[:, 1], t), pts[:, 1:2], out=np.empty(shape, np.float32))
     return cv2.remap(fld, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
@@ -1040,16 +1102,21 @@ def _refine_level(
         prof = _profiles(fld, pts, nrm, t)
         c2 = (nrm[:, 0] ** 2 - nrm[:, 1] ** 2)[:, None]  # exp(2i beta) of the wall normal
         s2 = (2.0 * nrm[:, 0] * nrm[:, 1])[:, None]
-        a = np.maximum(prof[..., 0] * c2 + prof[..., 1] * s2, 0.0) * kernel[None, :]
+        # a = max(agreement, 0) * kernel, in place (the samples are many: n x len(t))
+        a = prof[..., 0] * c2
+        a += prof[..., 1] * s2
+        np.maximum(a, 0.0, out=a)
+        a *= kernel
         wsum = a.sum(axis=1)
         ok = wsum > 1e-6
         n_ok = int(np.count_nonzero(ok))
         if n_ok < 20:
             break
+        moment = a @ t  # of every row: cheaper than copying the rows kept
         if n_ok < len(ok):
-            pts, nrm, a, wsum = pts[ok], nrm[ok], a[ok], wsum[ok]
+            pts, nrm, moment, wsum = pts[ok], nrm[ok], moment[ok], wsum[ok]
         jac, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        step = _solve_step(jac, gain * (a @ t) / wsum, wsum, max_px=3.0 * sigma * gain)
+        step = _solve_step(jac, gain * moment / wsum, wsum, max_px=3.0 * sigma * gain)
         if step is None:
             break
         pose = _updated(pose, step, rho)
@@ -1096,17 +1163,20 @@ def _refine_signed(
         if n_vis < len(vis):
             pts, nrm = pts[vis], nrm[vis]
         prof = _profiles(sfield, pts, nrm, t)
-        proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+        proj = prof[..., 0] * nrm[:, 0:1]  # in place from here on (n x len(t) samples)
+        proj += prof[..., 1] * nrm[:, 1:2]
         base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
         classes = []  # (sign, rows kept, their offsets, their weights) of each polarity
         for sign in (1.0, -1.0):
             expected = sign * half_width
-            a = np.maximum(sign * proj, 0.0) * np.exp(-0.5 * ((t - expected) / sigma) ** 2)[None, :]
+            a = sign * proj
+            np.maximum(a, 0.0, out=a)
+            a *= np.exp(-0.5 * ((t - expected) / sigma) ** 2)
             wsum = a.sum(axis=1)
             ok = wsum > 1e-3
             if np.count_nonzero(ok) < 10:
                 continue
-            classes.append((sign, ok, gain * (a[ok] @ (t - expected)) / wsum[ok], wsum[ok]))
+            classes.append((sign, ok, gain * (a @ (t - expected))[ok] / wsum[ok], wsum[ok]))
         if not classes:
             break
         # the rows of both classes: the similarity's columns and the half width's (+-1)
@@ -1203,7 +1273,7 @@ class WallFit:
 def _edge_layers(em: EdgeMap) -> np.ndarray:
     """(h, w, 2) float32 unit gradient directions on edge pixels, zero elsewhere."""
     idx = np.flatnonzero(em.mask)
-    inv = np.float32(1.0) / np.maximum(cv2.magnitude(em.gx, em.gy).ravel()[idx], np.float32(1e-12))
+    inv = np.float32(1.0) / np.maximum(em.magnitude.ravel()[idx], np.float32(1e-12))
     layers = np.zeros(em.shape + (2,), np.float32)
     flat = layers.reshape(-1, 2)  # a view: edge pixels are written in place
     flat[idx, 0] = em.gx.ravel()[idx] * inv
@@ -1226,18 +1296,38 @@ def _edge_distances(
     h, w = layers.shape[:2]
     px, py = pts[:, 0:1].astype(np.float32), pts[:, 1:2].astype(np.float32)
     nx, ny = nrm[:, 0:1].astype(np.float32), nrm[:, 1:2].astype(np.float32)
-    # the pixels the normal passes through, and their exact offsets along it
-    ix = np.rint(px + t * nx).astype(np.intp)
-    iy = np.rint(py + t * ny).astype(np.intp)
-    np.clip(ix, 0, w - 1, out=ix)  # samples off the image read the border, which the
-    np.clip(iy, 0, h - 1, out=iy)  # offset test below then rejects as too far or misaligned
-    offset = (ix - px) * nx + (iy - py) * ny
+    # the pixels the normal passes through, and their exact offsets along it (the arrays are
+    # n x len(t): the arithmetic goes in place where it can)
+    ix, iy = _nearest_pixels(px, nx, t, w), _nearest_pixels(py, ny, t, h)
+    offset = ix - px  # float64
+    offset *= nx
+    along_y = iy - py
+    along_y *= ny
+    offset += along_y
     prof = np.take(layers.reshape(-1, 2), iy * w + ix, axis=0)  # = layers[iy, ix], faster
-    proj = prof[..., 0] * nx + prof[..., 1] * ny  # cos of the angle, 0 off edges
+    proj = prof[..., 0] * nx  # cos of the angle, 0 off edges
+    proj += prof[..., 1] * ny
     expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
-    dist = np.abs(offset - expected)
-    dist[(np.abs(proj) < _COS_ALIGNED) | (np.abs(offset - t) > 1.0) | (dist > reach)] = np.inf
+    dist = offset - expected
+    np.abs(dist, out=dist)
+    stray = offset - t  # distance from the sample's own offset
+    np.abs(stray, out=stray)
+    dist[(np.abs(proj) < _COS_ALIGNED) | (stray > 1.0) | (dist > reach)] = np.inf
     return dist.min(axis=1)
+
+
+def _nearest_pixels(start: np.ndarray, step: np.ndarray, t: np.ndarray, size: int) -> np.ndarray:
+    """Index (px) of the pixel nearest to ``start + t * step`` along one axis (float32
+    ``(n, 1)``, ``(len(t),)`` and ``(n, 1)`` arrays), clipped to ``[0, size - 1]``.
+
+    Samples off the image read the border, which :func:`_edge_distances`'s offset test then
+    rejects as too far or misaligned.
+    """
+    pos = t * step
+    pos += start
+    np.rint(pos, out=pos)
+    index = pos.astype(np.intp)
+    return np.clip(index, 0, size - 1, out=index)
 
 
 def _median(values: np.ndarray) -> float:
@@ -1462,9 +1552,10 @@ def register(
     frames = _frame_list(gray_frames)
     gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
-    gx, gy, sigma = _gradients_for_canny(gray, cfg.edge_sigma_px)
+    gx, gy, sigma, magnitude = _gradients_for_canny(gray, cfg.edge_sigma_px)
     levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
-    edges = _prepare_edges(edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px), levels)
+    em = edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px, magnitude=magnitude)
+    edges = _prepare_edges(em, levels)
     if len(edges.points) < 50:
         raise RegistrationError(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
