@@ -687,6 +687,20 @@ def _identifiability_notes(
 # --------------------------------------------------------------------------- the fit
 
 
+def _ci95(value: float, se_u: float, log_scale: bool) -> tuple[float, float]:
+    """The 95 % interval of a parameter fitted as ``u`` (the value, or its log when
+    ``log_scale``) with standard error ``se_u`` (in ``u``'s unit).
+
+    A log-scale parameter the data barely constrain can have a finite standard error beyond
+    ``exp``'s range (a flat direction the identifiability test did not flag); its interval is
+    then (0, inf) instead of an OverflowError.
+    """
+    half = 1.96 * se_u
+    if not log_scale:
+        return value - half, value + half
+    return value * math.exp(-half), value * math.exp(half) if half < 709.0 else math.inf
+
+
 def fit_synced(
     table: pd.DataFrame,
     options: FitOptions = FitOptions(),
@@ -799,8 +813,7 @@ def fit_synced(
     for j, name in enumerate(names):
         if at_bound[j]:
             notes.append(f"{name} = {x[j]:.4g} is at its bound: its standard error is not meaningful")
-        half = 1.96 * se_u[method][j]
-        ci = (x[j] * math.exp(-half), x[j] * math.exp(half)) if is_log[j] else (x[j] - half, x[j] + half)
+        ci = _ci95(float(x[j]), float(se_u[method][j]), bool(is_log[j]))
         params[name] = ParamEstimate(
             float(x[j]), *(float(dx_du[j] * se_u[m][j]) for m in (method, "naive", "cluster", "neff")),
             at_bound=bool(at_bound[j]), ci95=(float(ci[0]), float(ci[1])), log_scale=bool(is_log[j]),

@@ -15,6 +15,7 @@ from pipeline.identify import (
     DEFAULT_FREE,
     FitOptions,
     _build,
+    _ci95,
     _model_jacobian,
     fit_synced,
     fit_to_json,
@@ -42,6 +43,14 @@ def white_fit():
     rng = np.random.default_rng(11)
     table = synthetic_synced(TRUTH, rng=rng, trials=5, noise_rel=0.03)
     return table, fit_synced(table, FitOptions(base=START, starts=6, seed=1))
+
+
+def test_ci95_linear_log_and_beyond_exp_range():
+    assert _ci95(2.0, 0.5, False) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
+    lo, hi = _ci95(2.0, 0.5, True)
+    assert (lo, hi) == pytest.approx((2.0 * math.exp(-0.98), 2.0 * math.exp(0.98)))
+    # a barely constrained log-scale parameter (seen on the committed samples: log-se ~724)
+    assert _ci95(0.9, 724.0, True) == (0.0, math.inf)
 
 
 def test_recovers_parameters_within_three_standard_errors(white_fit):
