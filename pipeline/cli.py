@@ -231,7 +231,7 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", default=None, metavar="N,..",
                    help="worker counts of the batch figure (default 1,2,4; 1,2 with --quick)")
     p.add_argument("--batch-videos", type=positive_int, default=None, metavar="N",
-                   help="videos per batch of the workers figure (default 4; 2 with --quick)")
+                   help="videos per batch of the workers figure (default 8; 2 with --quick)")
     p.add_argument("--skip", default="", metavar="SECTION,..",
                    help="sections to leave out: memory, diagnosis, workers")
     p.add_argument("--repeats", type=positive_int, default=None, metavar="N",
