@@ -27,6 +27,7 @@ recorded; the angles table's ``reg_epoch`` column says which one a frame used.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import csv
 import dataclasses
 import math
@@ -798,16 +799,20 @@ def _run_one(item: VideoItem, trial: str, out_dir: str, cfg: ExtractConfig, fps:
     """Worker body: :func:`process_video` with every failure turned into a summary row."""
     if _CANCEL_EVENT is not None and _CANCEL_EVENT.is_set():
         return _summary(trial, Path(item.path), "failed", error="cancelled (interrupted)", error_kind="cancelled")
-    if single_thread:  # one worker a core: OpenCV, and the decoder unless told otherwise, on one thread
+    blas = contextlib.nullcontext()
+    if single_thread:  # one worker a core: OpenCV, BLAS and the decoder (unless told otherwise) on one thread
         import cv2
+        from threadpoolctl import threadpool_limits
 
         cv2.setNumThreads(1)
+        blas = threadpool_limits(limits=1)
         if cfg.decoder_threads is None:
             cfg = dataclasses.replace(cfg, decoder_threads=1)
     t0 = time.perf_counter()
     try:
-        return process_video(item.path, out_dir, cfg, fps=item.fps if item.fps is not None else fps,
-                             trial=trial, overwrite=overwrite, progress=progress)
+        with blas:
+            return process_video(item.path, out_dir, cfg, fps=item.fps if item.fps is not None else fps,
+                                 trial=trial, overwrite=overwrite, progress=progress)
     except Exception as exc:
         return _summary(trial, Path(item.path), "failed", error=one_line(exc),
                         error_kind="input" if is_input_error(exc) else "error",

@@ -430,16 +430,25 @@ def test_measure_batch_validation():
 
 
 def test_pool_workers_decode_on_one_thread(monkeypatch, tmp_path):
-    """A worker of a pool (one a core) runs the decoder on one thread unless told otherwise;
-    a serial run keeps the decoder's default."""
-    seen = []
-    monkeypatch.setattr(batch, "process_video", lambda path, out, cfg, **kw: seen.append(cfg.decoder_threads) or {})
+    """A worker of a pool (one a core) runs the decoder (unless told otherwise) and BLAS on one
+    thread; a serial run keeps their defaults."""
+    from threadpoolctl import threadpool_info
+
+    seen, blas = [], []
+
+    def fake(path, out, cfg, **kw):
+        seen.append(cfg.decoder_threads)
+        blas.append(max((p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"), default=1))
+        return {}
+
+    monkeypatch.setattr(batch, "process_video", fake)
     item = VideoItem(str(tmp_path / "v.mp4"))
     cfg = ExtractConfig(measure=None, registration=None)
     batch._run_one(item, "v", str(tmp_path), cfg, None, False, True, False)
     batch._run_one(item, "v", str(tmp_path), dataclasses.replace(cfg, decoder_threads=3), None, False, True, False)
     batch._run_one(item, "v", str(tmp_path), cfg, None, False, False, False)
     assert seen == [1, 3, None]
+    assert blas[:2] == [1, 1]
 
 
 def test_batched_measurement_equals_one_at_a_time(tmp_path):
