@@ -970,6 +970,40 @@ def _relevel(cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, level: np.n
     return np.where(found, j0 + k + t, edge)
 
 
+def _running_moments(values: np.ndarray, valid: np.ndarray, x: np.ndarray, pad: int) -> np.ndarray:
+    """Running sums along the stations of the moments the local line fits need.
+
+    Parameters
+    ----------
+    values : ndarray, shape (k, n)
+        ``k`` profiles (any unit); only ``valid`` stations count (NaN elsewhere is ignored).
+    valid : ndarray, shape (n,), bool
+        Stations measured.
+    x : ndarray, shape (n,)
+        Station positions (stations).
+    pad : int
+        Columns of zeros before the sums and of the held total after them.
+
+    Returns
+    -------
+    ndarray, shape (3 + 2k, n + 2 pad + 1)
+        Rows w, w x, w x², w y (``k`` rows), w y x (``k`` rows), with w = ``valid``: column
+        ``pad + 1 + i`` sums stations 0..i, the ``pad + 1`` columns before it are 0 and the
+        ``pad`` after the last hold the total.
+    """
+    k, n = values.shape
+    csum = np.zeros((3 + 2 * k, n + 2 * pad + 1))
+    body = csum[:, pad + 1 : n + pad + 1]
+    body[0] = valid
+    np.multiply(body[0], x, out=body[1])
+    np.multiply(body[1], x, out=body[2])
+    np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
+    np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
+    np.cumsum(body, axis=1, out=body)
+    csum[:, n + pad + 1 :] = csum[:, n + pad : n + pad + 1]
+    return csum
+
+
 def _smooth_valid(
     values: np.ndarray, valid: np.ndarray, size: int, slope_size: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1001,15 +1035,7 @@ def _smooth_valid(
     slope_size = size if slope_size is None else slope_size
     big = max(size, slope_size) // 2
     x = np.arange(n, dtype=float)
-    csum = np.zeros((3 + 2 * k, n + 2 * big + 1))  # cumulative sums, 0 before, held after
-    body = csum[:, big + 1 : n + big + 1]  # rows w, w x, w x², w y (k rows), w y x (k rows)
-    body[0] = valid
-    np.multiply(body[0], x, out=body[1])
-    np.multiply(body[1], x, out=body[2])
-    np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
-    np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
-    np.cumsum(body, axis=1, out=body)
-    csum[:, n + big + 1 :] = csum[:, n + big : n + big + 1]
+    csum = _running_moments(values, valid, x, big)
 
     def sums(h: int) -> np.ndarray:  # over stations i-h .. i+h (clipped)
         return csum[:, big + h + 1 : big + h + 1 + n] - csum[:, big - h : big - h + n]
@@ -1837,16 +1863,7 @@ def _smooth_ragged(values: np.ndarray, valid: np.ndarray, rg: _Ragged, size: int
     k, total = values.shape
     h = size // 2
     x = rg.local.astype(float)
-    # running sums from position 0 at column h + 1 (h + 1 zeros before, the total held h after)
-    csum = np.zeros((3 + 2 * k, total + 2 * h + 1))  # rows w, w x, w x², w y (k rows), w y x (k rows)
-    body = csum[:, h + 1 : total + h + 1]
-    body[0] = valid
-    np.multiply(body[0], x, out=body[1])
-    np.multiply(body[1], x, out=body[2])
-    np.copyto(body[3 : 3 + k], values, where=valid)  # 0 elsewhere (NaN there is ignored)
-    np.multiply(body[3 : 3 + k], x, out=body[3 + k :])
-    np.cumsum(body, axis=1, out=body)
-    csum[:, total + h + 1 :] = csum[:, total + h : total + h + 1]
+    csum = _running_moments(values, valid, x, h)
     sums = csum[:, 2 * h + 1 :] - csum[:, :total]  # over positions i-h .. i+h
     near_end = np.flatnonzero((rg.local < h) | (rg.local >= rg.n[rg.row] - h))  # windows to clip to the frame
     if len(near_end):
