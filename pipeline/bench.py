@@ -75,9 +75,8 @@ class BenchConfig:
         Worker-process counts of the batch throughput figure.
     batch_videos : int
         Videos (copies of the bench video) per batch. A pool's start-up (its processes, their
-        imports and first registration) takes 1.5-2 s on 2 cores, so with few short videos
-        it outweighs the parallel work: 8 of 200 frames are about the fewest where 2 workers
-        beat 1.
+        imports and first registration) takes 1.5-2 s on 2 cores: with 4 videos of 200 frames
+        it outweighed the parallel work in every run, so the default is 8.
     sections : tuple of str
         Which of :data:`SECTIONS` to run.
     repeats : int
