@@ -168,7 +168,10 @@ def test_ragged_helpers_equal_per_frame(seed: int) -> None:
         np.testing.assert_array_equal(near, np.concatenate([angles_mod._near(m, size) for m in rg.split(mask)]))
         med = angles_mod._running_median_ragged(values, rg, size)
         np.testing.assert_array_equal(med, np.concatenate([angles_mod._running_median(v, size) for v in rg.split(values)]))
-    np.testing.assert_array_equal(rg.unpad(rg.pad(values, np.nan)), values)
+    padded = rg.pad(values, np.nan)  # each frame left-aligned in its row, the fill after it
+    for b, v in enumerate(rg.split(values)):
+        np.testing.assert_array_equal(padded[b, : len(v)], v)
+        assert np.isnan(padded[b, len(v) :]).all()
     np.testing.assert_array_equal(rg.count(mask), [m.sum() for m in rg.split(mask)])
     np.testing.assert_array_equal(rg.last(mask), [np.flatnonzero(m)[-1] if m.any() else -1 for m in rg.split(mask)])
 

@@ -1405,6 +1405,21 @@ def _fluid_levels(
     return out
 
 
+def _bracket(x: np.ndarray, xp: np.ndarray) -> np.ndarray:
+    """For each query ``x``, the ``j`` with ``xp[j] <= x < xp[j + 1]`` as ``np.interp`` finds it,
+    clipped to ``0 .. len(xp) - 2`` (``xp`` strictly increasing, at least 2 samples)."""
+    return np.minimum(np.maximum(np.searchsorted(xp, x, side="right") - 1, 0), len(xp) - 2)
+
+
+def _interp_at(x: np.ndarray, xp: np.ndarray, j: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """``np.interp``'s value at ``x`` from its bracket ``j`` (:func:`_bracket`) and the samples
+    there (``lo`` at ``xp[j]``, ``hi`` at ``xp[j + 1]``), with its own arithmetic; ``first``
+    and ``last`` (the end samples) beyond the ends."""
+    value = (hi - lo) / (xp[j + 1] - xp[j]) * (x - xp[j]) + lo
+    return np.where(x < xp[0], first, np.where(x >= xp[-1], last, value))
+
+
 def _interp_ragged(x: np.ndarray, row: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """``np.interp(x[i], xp, fp[row[i]])`` for each query ``i``, equal to it (finite values).
 
@@ -1430,12 +1445,10 @@ def _interp_ragged(x: np.ndarray, row: np.ndarray, xp: np.ndarray, fp: np.ndarra
     m = len(xp)
     if m == 1:
         return fp[row, 0].astype(float)
-    j = np.minimum(np.maximum(np.searchsorted(xp, x, side="right") - 1, 0), m - 2)
-    flat = fp.ravel()
-    at = row * m + j
-    lo, hi = np.take(flat, at), np.take(flat, at + 1)
-    value = (hi - lo) / (xp[j + 1] - xp[j]) * (x - xp[j]) + lo
-    return np.where(x < xp[0], np.take(flat, row * m), np.where(x >= xp[-1], np.take(flat, row * m + m - 1), value))
+    j = _bracket(x, xp)
+    flat, at, first = fp.ravel(), row * m + j, row * m
+    return _interp_at(x, xp, j, np.take(flat, at), np.take(flat, at + 1), np.take(flat, first),
+                      np.take(flat, first + m - 1))
 
 
 def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
@@ -1458,10 +1471,8 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     m = len(xp)
     if m == 1:
         return np.repeat(fp[:, :1].astype(float), len(x), axis=1)
-    j = np.minimum(np.maximum(np.searchsorted(xp, x, side="right") - 1, 0), m - 2)
-    lo, hi = fp[:, j], fp[:, j + 1]
-    value = (hi - lo) / (xp[j + 1] - xp[j]) * (x - xp[j]) + lo
-    return np.where(x < xp[0], fp[:, :1], np.where(x >= xp[-1], fp[:, -1:], value))
+    j = _bracket(x, xp)
+    return _interp_at(x, xp, j, fp[:, j], fp[:, j + 1], fp[:, :1], fp[:, -1:])
 
 
 def _row_quantiles(x: np.ndarray, keep: np.ndarray, q: float) -> np.ndarray:
@@ -1784,11 +1795,6 @@ class _Ragged:
         out = np.full(x.shape[:-1] + (len(self.n) * self.width,), fill, dtype=x.dtype)
         out[..., self.flat] = x
         return out.reshape(x.shape[:-1] + (len(self.n), self.width))
-
-    def unpad(self, x: np.ndarray) -> np.ndarray:
-        """The inverse of :meth:`pad`: (..., B, max n) to (..., total)."""
-        x = np.ascontiguousarray(x)
-        return np.take(x.reshape(x.shape[:-2] + (-1,)), self.flat, axis=-1)
 
     def count(self, mask: np.ndarray) -> np.ndarray:
         """Per frame, how many of its positions ``mask`` holds at."""
