@@ -43,7 +43,7 @@ import pandas as pd
 
 from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from vision.errors import InputError, is_input_error, one_line
-from vision.frames import Frame, FrameSource, open_frames, to_gray
+from vision.frames import Frame, FrameSource, check_decoder_threads, open_frames, to_gray
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -143,9 +143,7 @@ class ExtractConfig:
             raise ValueError(f"register_frames must be an integer >= 1, not {self.register_frames!r}")
         if int(self.measure_batch) != self.measure_batch or self.measure_batch < 1:
             raise ValueError(f"measure_batch must be an integer >= 1, not {self.measure_batch!r}")
-        if self.decoder_threads is not None and (int(self.decoder_threads) != self.decoder_threads
-                                                 or self.decoder_threads < 1):
-            raise ValueError(f"decoder_threads must be an integer >= 1 or None, not {self.decoder_threads!r}")
+        check_decoder_threads(self.decoder_threads)
         if not self.measure_batch_mb > 0:
             raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):

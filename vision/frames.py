@@ -54,6 +54,7 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "open_frames",
     "to_gray",
+    "check_decoder_threads",
 ]
 
 #: File name endings (lower case) of the still frames a folder source reads.
@@ -111,6 +112,22 @@ def _check_fps(path: Path, fps: float | None) -> float | None:
     if not (math.isfinite(value) and 0.0 < value <= _MAX_FPS):
         raise InputError(path, f"invalid frame rate {fps!r} (must be a positive number of frames per second)")
     return value
+
+
+def check_decoder_threads(decoder_threads: int | None) -> int | None:
+    """``decoder_threads`` (a decoder thread count: an integer >= 1, or None for the decoder's
+    default) as an int or None.
+
+    Raises
+    ------
+    ValueError
+        Anything else.
+    """
+    if decoder_threads is None:
+        return None
+    if int(decoder_threads) != decoder_threads or decoder_threads < 1:
+        raise ValueError(f"decoder_threads must be an integer >= 1 or None, not {decoder_threads!r}")
+    return int(decoder_threads)
 
 
 def _natural_key(name: str) -> list:
@@ -239,10 +256,9 @@ class VideoFrames(FrameSource):
     def __init__(self, path: Path, *, fps: float | None = None, decoder_threads: int | None = None) -> None:
         path = Path(path)
         user_fps = _check_fps(path, fps)
-        if decoder_threads is not None and (int(decoder_threads) != decoder_threads or decoder_threads < 1):
-            raise ValueError(f"decoder_threads must be an integer >= 1 or None, not {decoder_threads!r}")
+        decoder_threads = check_decoder_threads(decoder_threads)
         self._backend = _video_backend()
-        self._params = [] if decoder_threads is None else [cv2.CAP_PROP_N_THREADS, int(decoder_threads)]
+        self._params = [] if decoder_threads is None else [cv2.CAP_PROP_N_THREADS, decoder_threads]
         cap = cv2.VideoCapture(str(path), self._backend, self._params)
         try:
             if not cap.isOpened():
