@@ -264,7 +264,7 @@ def _figures(diag: Diagnosis, out: Path) -> dict[str, str]:
     fig, ax = plt.subplots(figsize=(7.0, 3.2))
     width = 0.8 / n_s
     for k, s in enumerate(ds.speeds):
-        for name, alpha, hatch in (("base", 0.45, None), (leader, 1.0, None)):
+        for name, alpha in (("base", 0.45), (leader, 1.0)):
             r = (ds.y - diag.heldout[name])
             vals = [float(np.mean(r[(ds.speed_idx == k) & (ds.phase_label == p)])) if np.any(
                 (ds.speed_idx == k) & (ds.phase_label == p)) else np.nan for p in range(len(PHASES))]

@@ -1029,8 +1029,8 @@ def fit_table(
     cov = s2 * np.linalg.pinv(jac.T @ jac)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     warnings = []
-    for name, value, l, h in zip(free, res.x, lo, hi):
-        if np.isclose(value, l, rtol=1e-6) or np.isclose(value, h, rtol=1e-6):
+    for name, value, low, high in zip(free, res.x, lo, hi):
+        if np.isclose(value, low, rtol=1e-6) or np.isclose(value, high, rtol=1e-6):
             warnings.append(f"{name} is at its bound {value:.4g}: its standard error is not meaningful")
     sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     corr = cov / np.outer(sd, sd)

@@ -34,7 +34,6 @@ from vision.angles import (
     prepare_measurement,
 )
 from vision.geometry import (
-    DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
     CameraPose,
     ElectrodeArray,

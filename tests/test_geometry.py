@@ -89,7 +89,6 @@ def test_outline_is_a_simple_polygon():
     """No two non-neighbouring edges of the channel outline intersect."""
     poly = channel_polygon()[::5]
     a, b = poly[:-1], poly[1:]
-    n = len(a)
     # sweep: only test segment pairs whose bounding boxes overlap (grid hashing)
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     crossings = 0

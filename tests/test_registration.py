@@ -85,7 +85,7 @@ def test_clean_frames_centre_within_1px_scale_1pct_rotation_half_degree(clean_ru
     assert errs[:, 2].max() <= 0.5, errs[:, 2]
     assert {style for *_, style in clean_runs} == {"lines", "region", "both"}
     assert {truth.mirrored for truth, *_ in clean_runs} == {False, True}
-    for truth, reg, _, _ in clean_runs:
+    for _, reg, _, _ in clean_runs:
         assert reg.inlier_fraction > 0.9 and reg.residual_px < 1.0
 
 

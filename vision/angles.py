@@ -1512,9 +1512,9 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
     """
     cfg, step, sa = plan.cfg, plan.step_mm, max(1, int(plan.cfg.coarse_stride))
     coarse = np.empty((len(imgs),) + plan.coarse_x.shape, np.float32)
-    for img, out in zip(imgs, coarse):  # each frame's blurred coarse strip, written in place
+    for img, dst in zip(imgs, coarse):  # each frame's blurred coarse strip, written in place
         strip = cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        cv2.blur(strip.astype(np.float32, copy=False), (3, 3), dst=out)
+        cv2.blur(strip.astype(np.float32, copy=False), (3, 3), dst=dst)
     n_rows = len(imgs)
     low = coarse + plan.coarse_penalty
     darkest = low.min(axis=1)
