@@ -6,7 +6,8 @@
    :func:`render_bench_video`): frames/s of decoding alone (read + grey conversion) and of the
    full extraction (:func:`pipeline.batch.extract_video`: registration, checks, measurement),
    and their ratio. Both are timed ``repeats`` times (3), alternately, and the fastest of each
-   is compared; the first extraction in a process also pays one-off start-up costs (imports,
+   is compared (each round's own ratio is listed too, to show the spread the machine's load
+   makes); the first extraction in a process also pays one-off start-up costs (imports,
    first calls), so it is reported beside as the cold figure. The process is pinned to one CPU
    meanwhile (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's,
    as many as there are cores) that OpenCV's thread setting does not reach, and both decode
@@ -276,6 +277,9 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
         for _ in range(max(1, int(repeats))):
             decodes.append(_decode_s(path, fps, cfg.decoder_threads))
             extracts.append(_extract_s(path, cfg, fps))
+    # each round's extraction speed as a fraction of the decoding timed just before it; the
+    # first round's extraction is the cold one
+    rounds = [(len(t) / e) / (k / d) if e > 0 and d > 0 else 0.0 for (k, d, _), (t, e) in zip(decodes, extracts)]
     n, decode_s, shape = min(decodes, key=lambda d: d[1])
     table, cold_s = extracts[0]
     table_b, warm_s = min(extracts, key=lambda e: e[1])  # the best run is the warm figure
@@ -302,6 +306,7 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
         "extract_fps_cold": len(table) / cold_s if cold_s > 0 else float("inf"),
         "ratio": decode_fps / extract_fps if extract_fps > 0 else float("inf"),
         "extract_vs_decode": extract_fps / decode_fps if decode_fps > 0 else 0.0,
+        "extract_vs_decode_rounds": rounds,
         "extract_fps_steady": (steady := len(table_b) / (warm_s - once_s) if warm_s > once_s else float("inf")),
         "ratio_steady": decode_fps / steady if steady > 0 else float("inf"),
         "stage_s": timing,
@@ -510,6 +515,9 @@ def format_bench(result: dict) -> str:
         f"{result['extract_fps_cold']:.1f} frames/s cold (first in the process)",
         f"ratio          {result['ratio']:8.2f} x (decode / extract): extraction at "
         f"{100.0 * result['extract_vs_decode']:.0f} % of decode speed",
+        *([f"per round      {', '.join(f'{100.0 * r:.0f}' for r in result['extract_vs_decode_rounds'])} % of decode "
+           f"speed (each round: decode, then extract; the first extraction is cold)"]
+          if result.get("extract_vs_decode_rounds") else []),
         f"steady state   {result['extract_fps_steady']:8.1f} frames/s (extraction without the one-off registration)",
         f"ratio steady   {result['ratio_steady']:8.2f} x (decode / steady state): extraction at "
         f"{100.0 / result['ratio_steady']:.0f} % of decode speed after the one-off registration",

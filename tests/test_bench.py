@@ -56,6 +56,8 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     for key in ("decode_fps", "extract_fps", "extract_fps_cold", "ratio", "extract_vs_decode"):
         assert _finite_positive(result[key]), key
     assert result["ratio"] == pytest.approx(1.0 / result["extract_vs_decode"])
+    rounds = result["extract_vs_decode_rounds"]  # one per repeat, each extraction against its own decode
+    assert len(rounds) == config.repeats and all(_finite_positive(r) for r in rounds)
     assert result["n_ok"] >= 10
     if cpus is not None:  # timed on one CPU, and the process let go afterwards
         assert result["pinned_cpu"] in cpus and os.sched_getaffinity(0) == cpus
@@ -77,7 +79,7 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     for w in result["workers"]:
         assert w["ok"] == w["videos"] == 2 and w["frames"] == 24 and _finite_positive(w["frames_per_s"])
     text = format_bench(result)
-    for fragment in ("decode only", "full extract", "% of decode speed", "registration", "edges", "angles",
+    for fragment in ("decode only", "full extract", "% of decode speed", "per round", "registration", "edges", "angles",
                      "extraction short", "extraction long", "diagnosis", "batch workers", "bench total"):
         assert fragment in text, fragment
     assert "FAILED" not in text
