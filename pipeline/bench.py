@@ -63,6 +63,11 @@ class BenchConfig:
     ----------
     n_frames : int
         Frames of the rendered video (ignored for a given video).
+    size : tuple of int
+        ``(width, height)`` (px) of the rendered video. The phantom's scale (px/mm) is drawn
+        from ``seed`` and shrunk only if the channel would not fit, so a larger frame shows
+        the same phantom, as a camera with a larger sensor would: more pixels to decode, the
+        same channel to measure.
     seed : int
         Seed of the renderer and of the synthetic diagnosis dataset.
     long_factor : int
@@ -86,6 +91,7 @@ class BenchConfig:
     """
 
     n_frames: int = 200
+    size: tuple[int, int] = (640, 480)
     seed: int = 0
     long_factor: int = 10
     speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
@@ -98,6 +104,8 @@ class BenchConfig:
     def __post_init__(self) -> None:
         if self.n_frames < 1 or self.long_factor < 1 or self.batch_videos < 1 or self.repeats < 1:
             raise ValueError("n_frames, long_factor, batch_videos and repeats must be >= 1")
+        if len(self.size) != 2 or min(self.size) < 64:
+            raise ValueError(f"size must be (width, height) with both >= 64 px, not {self.size!r}")
         if self.trials < 2:
             raise ValueError("the diagnosis needs at least 2 trials a speed")
         if not self.workers or min(self.workers) < 1:
@@ -113,8 +121,9 @@ class BenchConfig:
         return dataclasses.replace(cls(n_frames=30, trials=2, workers=(1, 2), batch_videos=2, repeats=2), **changes)
 
 
-def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed: int = 0) -> Path:
-    """Render the benchmark video (640×480 mp4) with :func:`vision.rendering.render_video`.
+def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed: int = 0,
+                       size: tuple[int, int] = (640, 480)) -> Path:
+    """Render the benchmark video (an mp4, 640×480 by default) with :func:`vision.rendering.render_video`.
 
     Parameters
     ----------
@@ -125,15 +134,18 @@ def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed
         30 frames/s and 1 mm/s has about 480, subsampled evenly to this many).
     seed : int
         Seed of the renderer's random generator.
+    size : tuple of int
+        ``(width, height)`` (px); see :attr:`BenchConfig.size`.
     """
     import numpy as np
 
     from vision import rendering
 
     names = {f.name for f in dataclasses.fields(rendering.VideoSpec)}
-    wanted: dict[str, Any] = {"width": 640, "height": 480, "n_frames": int(n_frames), "max_frames": int(n_frames)}
+    width, height = int(size[0]), int(size[1])
+    wanted: dict[str, Any] = {"width": width, "height": height, "n_frames": int(n_frames), "max_frames": int(n_frames)}
     if "pose" in names and hasattr(rendering, "random_pose"):
-        wanted["pose"] = rendering.random_pose(np.random.default_rng(seed), 640, 480)
+        wanted["pose"] = rendering.random_pose(np.random.default_rng(seed), width, height)
     spec = rendering.VideoSpec(**{k: v for k, v in wanted.items() if k in names})
     rendering.render_video(Path(out_path), spec, seed=seed)
     return Path(out_path)
@@ -475,8 +487,9 @@ def run_bench(
         with tempfile.TemporaryDirectory(prefix="tympani-bench-") as tmp_name:
             tmp = Path(tmp_name)
             if video is None:
-                say(f"rendering a {config.n_frames}-frame 640x480 video")
-                path = render_bench_video(tmp / "bench.mp4", n_frames=config.n_frames, seed=config.seed)
+                say(f"rendering a {config.n_frames}-frame {config.size[0]}x{config.size[1]} video")
+                path = render_bench_video(tmp / "bench.mp4", n_frames=config.n_frames, seed=config.seed,
+                                          size=config.size)
                 result["video"] = f"rendered (seed {config.seed})"
             else:
                 path = Path(video)

@@ -38,6 +38,8 @@ def test_bench_config_checks_its_values():
     with pytest.raises(ValueError):
         BenchConfig(sections=("nope",))
     with pytest.raises(ValueError):
+        BenchConfig(size=(32, 480))
+    with pytest.raises(ValueError):
         BenchConfig(workers=())
     with pytest.raises(ValueError):
         BenchConfig(trials=1)  # the diagnosis needs repeats
@@ -92,7 +94,25 @@ def test_bench_command_skips_sections(capsys, tiny_video):
     assert "extraction short" not in out and "batch workers" not in out and "diagnosis " not in out
 
 
+def test_render_bench_video_size_keeps_the_phantom(tmp_path):
+    """A larger frame shows the same phantom (same scale, px/mm): the registration finds it."""
+    from vision.frames import to_gray
+    from vision.registration import register
+
+    poses = []
+    for size in ((640, 480), (960, 600)):
+        video = render_bench_video(tmp_path / f"{size[0]}.mp4", n_frames=3, seed=0, size=size)
+        frames = [to_gray(f.image) for f in open_frames(video)]
+        assert frames[0].shape == (size[1], size[0])
+        poses.append(register(frames).pose)
+    assert poses[1].px_per_mm == pytest.approx(poses[0].px_per_mm, rel=0.01)
+
+
 def test_bench_command_rejects_bad_sizes(capsys):
+    assert main(["bench", "--size", "1280"]) == 2
+    assert "--size must be WIDTHxHEIGHT" in capsys.readouterr().err
+    assert main(["bench", "--size", "32x32"]) == 2
+    assert "size must be (width, height)" in capsys.readouterr().err
     assert main(["bench", "--skip", "bogus"]) == 2
     assert "unknown --skip" in capsys.readouterr().err
     assert main(["bench", "--trials", "1"]) == 2
