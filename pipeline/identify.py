@@ -45,6 +45,7 @@ residuals, ``n`` rows, ``p`` fitted model parameters.
   pooled lag-1 autocorrelation of the residuals within trials (AR(1) effective sample size).
 - ``v_s_mm_s`` is fitted as ``ln v_s`` (its errors are far from symmetric on the linear scale);
   its ``stderr`` is the delta-method ``v_s * se(ln v_s)``, its ``ci95`` is exp(ln v_s ± 1.96 se).
+- Every ``ci95`` is cut to the parameter's bounds (``PARAM_BOUNDS``), which the fit cannot leave.
 - ``auto`` (default): ``cluster`` when there are at least ``max(20, 3 p)`` trials, else
   ``neff``. All three are written to fit.json.
 
@@ -201,7 +202,8 @@ class ParamEstimate:
     at_bound : bool
         Whether the estimate sits on a bound (its standard error is then not meaningful).
     ci95 : tuple of float
-        Approximate 95 % interval (±1.96 stderr; on the log scale for log-scale parameters).
+        Approximate 95 % interval (±1.96 stderr; on the log scale for log-scale parameters),
+        cut to the parameter's :data:`PARAM_BOUNDS`.
     log_scale : bool
         Whether the parameter is fitted as its logarithm (``v_s_mm_s``): its correlations are
         those of the logarithm and ``stderr`` is the delta-method value ``value * se(log)``.
@@ -687,18 +689,23 @@ def _identifiability_notes(
 # --------------------------------------------------------------------------- the fit
 
 
-def _ci95(value: float, se_u: float, log_scale: bool) -> tuple[float, float]:
+def _ci95(value: float, se_u: float, log_scale: bool,
+          bounds: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
     """The 95 % interval of a parameter fitted as ``u`` (the value, or its log when
-    ``log_scale``) with standard error ``se_u`` (in ``u``'s unit).
+    ``log_scale``) with standard error ``se_u`` (in ``u``'s unit), cut to the parameter's
+    ``bounds`` (its unit), which the fit cannot leave: a friction coefficient the data barely
+    constrain gets (0, its upper bound), not a negative lower end.
 
     A log-scale parameter the data barely constrain can have a finite standard error beyond
     ``exp``'s range (a flat direction the identifiability test did not flag); its interval is
-    then (0, inf) instead of an OverflowError.
+    then (0, inf), before the cut, instead of an OverflowError.
     """
     half = 1.96 * se_u
     if not log_scale:
-        return value - half, value + half
-    return value * math.exp(-half), value * math.exp(half) if half < 709.0 else math.inf
+        lo, hi = value - half, value + half
+    else:
+        lo, hi = value * math.exp(-half), value * math.exp(half) if half < 709.0 else math.inf
+    return max(lo, bounds[0]), min(hi, bounds[1])
 
 
 def fit_synced(
@@ -813,7 +820,7 @@ def fit_synced(
     for j, name in enumerate(names):
         if at_bound[j]:
             notes.append(f"{name} = {x[j]:.4g} is at its bound: its standard error is not meaningful")
-        ci = _ci95(float(x[j]), float(se_u[method][j]), bool(is_log[j]))
+        ci = _ci95(float(x[j]), float(se_u[method][j]), bool(is_log[j]), PARAM_BOUNDS[name])
         params[name] = ParamEstimate(
             float(x[j]), *(float(dx_du[j] * se_u[m][j]) for m in (method, "naive", "cluster", "neff")),
             at_bound=bool(at_bound[j]), ci95=(float(ci[0]), float(ci[1])), log_scale=bool(is_log[j]),

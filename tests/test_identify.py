@@ -17,6 +17,7 @@ from pipeline.identify import (
     _build,
     _ci95,
     _model_jacobian,
+    PARAM_BOUNDS,
     fit_synced,
     fit_to_json,
     read_synced,
@@ -51,6 +52,10 @@ def test_ci95_linear_log_and_beyond_exp_range():
     assert (lo, hi) == pytest.approx((2.0 * math.exp(-0.98), 2.0 * math.exp(0.98)))
     # a barely constrained log-scale parameter (seen on the committed samples: log-se ~724)
     assert _ci95(0.9, 724.0, True) == (0.0, math.inf)
+    # cut to the bounds the fit cannot leave (the samples' mu_s: 0.16 +- 64)
+    assert _ci95(0.16, 33.0, False, (0.0, 1.5)) == (0.0, 1.5)
+    assert _ci95(0.9, 724.0, True, (0.01, 100.0)) == (0.01, 100.0)
+    assert _ci95(2.0, 0.5, False, (0.0, 10.0)) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
 
 
 def test_recovers_parameters_within_three_standard_errors(white_fit):
@@ -165,6 +170,8 @@ def test_unidentified_parameter_gets_infinite_error():
     assert any("mu_s is not identified" in w for w in fit.warnings)
     doc = json.loads(json.dumps(fit_to_json(fit)))  # inf/NaN become null: still valid JSON
     assert doc["params"]["mu_s"]["stderr"] is None
+    # its interval is all the fit allows, its bounds (not -inf .. inf)
+    assert tuple(doc["params"]["mu_s"]["ci95"]) == PARAM_BOUNDS["mu_s"]
 
 
 def test_unknown_parameter_names_are_rejected():
