@@ -207,7 +207,7 @@ def _figures(diag: Diagnosis, out: Path) -> dict[str, str]:
                 if np.isfinite(v):
                     pct = "" if order[j] == "no contact" or not np.isfinite(rel.iat[i, j]) else f"\n{rel.iat[i, j]:+.0f} %"
                     ax.text(j, i, f"{v:+.2g}{'*' if bool(sig.iat[i, j]) else ''}{pct}", ha="center", va="center",
-                            fontsize=7)
+                            fontsize=7, color="white" if abs(v) > 0.6 * lim else "black")  # legible on dark cells
         ax.set_xlabel("theta_con (rad)")
         ax.set_ylabel("speed (mm/s)")
         ax.set_title("held-out residual of the base model, g and % of the model (* q < 0.05)", fontsize=9)

@@ -155,6 +155,15 @@ def _num(value: Any, digits: int = 4) -> str:
     return f"{v:.{digits}g}"
 
 
+def _pct(value: Any) -> str:
+    """A percentage to 0.1 % (``0.0``, not ``-5.048e-07``), an en dash for missing."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return "–"
+    return f"{round(v, 1) + 0.0:.1f}" if math.isfinite(v) else "–"  # + 0.0: no "-0.0"
+
+
 def table_html(rows: Sequence[Sequence[Any]], header: Sequence[str], *, table_id: str,
                text_columns: Iterable[int] = (0,)) -> str:
     """An HTML table (cells escaped; numbers formatted by :func:`_num` unless already str).
@@ -329,7 +338,7 @@ def _diagnosis(data: dict) -> str:
     parts.append(f"<p>Where: {_e(g['where']['summary'])}.</p>")
     parts.append(f"<p>How much (held out): RMSE base {_num(g['rmse_base_g'])} g → base + "
                  f"<code>{_e(g['effect'])}</code> {_num(g['rmse_with_effect_g'])} g "
-                 f"({_num(g['shrink_pct'], 3)} %); control (friction law re-identified) "
+                 f"({_pct(g['shrink_pct'])} %); control (friction law re-identified) "
                  f"{_num(g.get('rmse_control_g'))} g. {_e(d['heldout']['scheme'])}.</p>")
     rows = [[r["candidate"], r["heldout_rmse_g"], (r.get("heldout_rmse_ci95_g") or [None])[0],
              (r.get("heldout_rmse_ci95_g") or [None, None])[1], r.get("extrapolation_rmse_g"), r["delta_bic"]]
@@ -338,7 +347,7 @@ def _diagnosis(data: dict) -> str:
         rows, ["candidate", "held-out RMSE (g)", "95 % CI low", "95 % CI high", "extrapolation RMSE (g)", "ΔBIC"],
         table_id="diagnosis-ranking"))
     rows = [[r["speed_mm_s"], r["n_trials"], r["rmse_base_g"], r["rmse_control_g"], r["rmse_with_effect_g"],
-             r["shrink_pct"]] for r in g.get("by_speed", [])]
+             _pct(r["shrink_pct"])] for r in g.get("by_speed", [])]
     parts.append("<h3>By held-out speed</h3>" + table_html(
         rows, ["speed (mm/s)", "trials", "base (g)", "control (g)", "with effect (g)", "shrink %"],
         table_id="diagnosis-by-speed", text_columns=()))

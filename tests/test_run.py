@@ -150,6 +150,13 @@ def test_report_renders_without_any_stage_output():
     assert page.startswith("<!DOCTYPE html>") and "No fit: x.csv: bad" in page and "No diagnosis" in page
 
 
+def test_report_percentages_are_fixed_point():
+    from pipeline.report import _pct
+
+    assert [_pct(v) for v in (-5.048e-07, 0.2117, -0.5844, 71.25, float("nan"), None)] == \
+        ["0.0", "0.2", "-0.6", "71.2", "–", "–"]
+
+
 # --------------------------------------------------------------------------- headless browser
 
 
