@@ -265,8 +265,8 @@ def _run_bench(args: argparse.Namespace) -> int:
             raise UsageError(f"tympani bench: --size must be WIDTHxHEIGHT in px, e.g. 1280x720, not {args.size!r}") from None
         size = (width, height)
     config = BenchConfig.quick() if args.quick else BenchConfig()
-    changes = {"n_frames": args.frames, "size": size, "trials": args.trials, "workers": workers, "batch_videos": args.batch_videos,
-               "repeats": args.repeats}
+    changes = {"n_frames": args.frames, "size": size, "trials": args.trials, "workers": workers,
+               "batch_videos": args.batch_videos, "repeats": args.repeats}
     try:
         config = replace(config, seed=args.seed, long_factor=args.long_factor,
                          sections=tuple(s for s in SECTIONS if s not in skip),
