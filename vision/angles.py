@@ -242,6 +242,11 @@ class MeasureConfig:
     beside_mm : float
         Length (mm) of channel over which the array must be seen beside the fluid for a frame
         to count as having an array in the channel.
+    band_border_mm : float
+        Length (mm) along the channel either side of a metal band's border that the fluid's
+        second estimate leaves out (at least two coarse stations): a border is blurred, and
+        oblique where the array crosses the channel, so it spans a length in mm, not in px.
+        Two coarse stations alone let band brightness into the fluid level above ~50 px/mm.
     dark_level : float
         Darkness (0 fluid, 1 array) from which a station holds the array.
     body_level : float
@@ -289,6 +294,7 @@ class MeasureConfig:
     fluid_floor: float = 0.85
     probe_mm: float = 1.5
     beside_mm: float = 0.3
+    band_border_mm: float = 0.1
     dark_level: float = 0.5
     body_level: float = 0.8
     border_px: int = 1
@@ -756,6 +762,12 @@ def _array_ratio(
     if beside.sum() < max(min_count, 3):
         return float("nan")
     return _quantile(ratio[beside], 0.3)
+
+
+def _band_border_c(cfg: MeasureConfig, step_mm: float) -> int:
+    """Coarse stations either side of a band's border kept out of the fluid's second estimate
+    (``cfg.band_border_mm``, at least 2), for stations ``step_mm`` (mm) apart."""
+    return max(2, int(np.ceil(cfg.band_border_mm / (max(1, int(cfg.coarse_stride)) * step_mm))))
 
 
 def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
@@ -1324,7 +1336,7 @@ def _survey(img: np.ndarray, plan: MeasurePlan) -> _Survey | FrameMeasurement:
     # near a band, whose brightness may exceed the fluid's) and plain fluid
     contrast_c = fluid_c * (1.0 - rho)
     body = (fluid_c - darkest) / contrast_c >= cfg.body_level
-    trusted = view_c & (_erode(body, 2) | ((brightest - darkest) / contrast_c < 0.3))
+    trusted = view_c & (_erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
     fluid_c = _fluid_level(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
     rho = _array_ratio(darkest, brightest, steepest, fluid_c, view_c, min_beside)
     if not rho == rho:
@@ -1535,7 +1547,7 @@ def _survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[_Survey | F
     rho = rho1[:, None]
     contrast_c = fluid_c * (1.0 - rho)
     body = (fluid_c - darkest) / contrast_c >= cfg.body_level
-    trusted = view_c & (_erode(body, 2) | ((brightest - darkest) / contrast_c < 0.3))
+    trusted = view_c & (_erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
     fluid_c = _fluid_levels(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
     rho2 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
     contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
