@@ -90,8 +90,10 @@ class RegistrationConfig:
 
     Parameters
     ----------
-    px_per_mm_range : tuple of float
-        Smallest and largest scale (px/mm) searched.
+    px_per_mm_range : tuple of float, or None
+        Smallest and largest scale (px/mm) searched. None (default): from 10 px/mm to 80 px/mm
+        per 640 px of the frame's larger side (80 at 640×480 and below, 240 at 1920×1080),
+        the scales at which enough of the walls can be in view (:func:`search_range`).
     coarse_px_per_mm : float
         Working resolution (px/mm of the phantom) of the global search.
     coarse_scale_step : float
@@ -132,7 +134,7 @@ class RegistrationConfig:
         How several frames are merged before edge detection.
     """
 
-    px_per_mm_range: tuple[float, float] = (10.0, 80.0)
+    px_per_mm_range: tuple[float, float] | None = None
     coarse_px_per_mm: float = 2.0
     coarse_scale_step: float = 0.10
     coarse_rotations: int = 128
@@ -152,13 +154,30 @@ class RegistrationConfig:
     combine: str = "median"
 
     def __post_init__(self) -> None:
-        lo, hi = self.px_per_mm_range
-        if not 0 < lo <= hi:
-            raise ValueError(f"px_per_mm_range must be 0 < lo <= hi, got {self.px_per_mm_range}")
+        if self.px_per_mm_range is not None:
+            lo, hi = self.px_per_mm_range
+            if not 0 < lo <= hi:
+                raise ValueError(f"px_per_mm_range must be 0 < lo <= hi, got {self.px_per_mm_range}")
         if self.combine not in ("median", "mean", "first"):
             raise ValueError(f"combine must be 'median', 'mean' or 'first', not {self.combine!r}")
         if self.edge_sigma_px is not None and self.edge_sigma_px <= 0:
             raise ValueError("edge_sigma_px must be positive or None")
+
+
+#: The automatic scale range (see :attr:`RegistrationConfig.px_per_mm_range`): px/mm, and the
+#: largest scale per 640 px of the frame's larger side.
+AUTO_MIN_PX_PER_MM, AUTO_MAX_PX_PER_MM_PER_640 = 10.0, 80.0
+
+
+def search_range(cfg: RegistrationConfig, width: int, height: int) -> tuple[float, float]:
+    """The scales (px/mm) :func:`register` searches in a ``width`` × ``height`` (px) frame:
+    ``cfg.px_per_mm_range``, or when it is None, 10 px/mm up to 80 px/mm per 640 px of the
+    larger side (never less than 80). At a given scale the phantom covers the same share of a
+    frame whatever its size in px/mm per px, so the largest scale at which enough of its walls
+    are in view grows with the frame."""
+    if cfg.px_per_mm_range is not None:
+        return cfg.px_per_mm_range
+    return AUTO_MIN_PX_PER_MM, AUTO_MAX_PX_PER_MM_PER_640 * max(1.0, max(width, height) / 640.0)
 
 
 @dataclass(frozen=True)
@@ -1552,6 +1571,8 @@ def register(
     frames = _frame_list(gray_frames)
     gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
+    cfg = replace(cfg, px_per_mm_range=search_range(cfg, w, h))
+    scales = f"{cfg.px_per_mm_range[0]:g}-{cfg.px_per_mm_range[1]:g} px/mm"  # named when nothing is found
     gx, gy, sigma, magnitude = _gradients_for_canny(gray, cfg.edge_sigma_px)
     levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
     em = edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px, magnitude=magnitude)
@@ -1563,7 +1584,8 @@ def register(
     model = wall_model(phantom, spacing_mm=0.02)
     best = _best_pose(edges, model, cfg)
     if best is None:
-        raise RegistrationError("no phantom found: no candidate of the global search converged to a plausible scale")
+        raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
+                                "plausible scale")
     pose, half_width, fit = best
     reasons = []
     if fit.visible_fraction < cfg.min_visible_fraction:
@@ -1576,7 +1598,7 @@ def register(
     if fit.residual_px > cfg.max_residual_px:
         reasons.append(f"median wall-to-edge distance {fit.residual_px:.1f} px (max {cfg.max_residual_px:.1f})")
     if reasons:
-        raise RegistrationError("no phantom found: the best candidate fails: " + "; ".join(reasons))
+        raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))
     registration = Registration(
         pose=pose,
         residual_px=fit.residual_px,
