@@ -408,6 +408,9 @@ def measure_frames(
                 t0 = time.perf_counter()
                 plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
                 log.add_time("prepare", time.perf_counter() - t0)
+                refusal = getattr(plan, "refusal", None)
+                if refusal:  # every frame of this registration fails the same way: say it once
+                    log.warnings.append(f"frames from {pending[0][0].index} on: {refusal}")
             log.in_force.append((new, plan))
         registration = new
         last_registered_at = pending[0][0].index

@@ -167,6 +167,22 @@ def test_depth_estimate(ensemble: list[dict]) -> None:
     assert np.median(errs) < 0.3
 
 
+def test_scale_floor_refuses_every_frame_below_it() -> None:
+    """Below MeasureConfig.min_tip_px (8.5 px: 14.2 px/mm with the default array) the plan
+    refuses every frame, alone or in a batch; just above it, frames are measured."""
+    rng = np.random.default_rng(12)
+    for ppm, refused in ((12.0, True), (15.0, False)):
+        pose = CameraPose(330.0, 250.0, 0.4, ppm, False)
+        scene = Scene(pose, W, H, Appearance(), Nuisance(), rng=rng)
+        frame = _gray(scene.render(pose_at_depth(10.0)))
+        plan = prepare_measurement(_reg(pose), frame.shape)
+        single, (batched,) = measure_frame(frame, plan), measure_frames_batch([frame], plan)
+        assert (plan.refusal is not None) == refused
+        for m in (single, batched):
+            assert m.ok != refused
+            assert (m.reason or "").startswith("array too small in the image") == refused
+
+
 def test_high_magnification_ensemble() -> None:
     """Zoomed-in cameras: 36 random 1280x960 frames at 36-68 px/mm (seed 7), every one measured,
     with |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.2 rad on each, and the batch

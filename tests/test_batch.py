@@ -467,3 +467,20 @@ def test_batched_measurement_equals_one_at_a_time(tmp_path):
     pd.testing.assert_frame_equal(one[cols], capped[cols])  # the decoder's threads change nothing either
     assert one["ok"].sum() >= 25 and len(eight.attrs["checks"]) == len(one.attrs["checks"]) >= 3
     assert eight.attrs["timing_s"]["measure"] > 0 and "measure.survey" in eight.attrs["timing_s"]
+
+
+def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
+    """A phantom filmed at 12 px/mm (the array's tip 7.2 px wide, under MeasureConfig.min_tip_px):
+    registration works, every frame is refused with the reason, and the log says it once."""
+    from vision.geometry import CameraPose
+    from vision.rendering import VideoSpec, render_video
+
+    pose = CameraPose(330.0, 250.0, 0.4, 12.0, False)
+    video = tmp_path / "far.mp4"
+    render_video(video, VideoSpec(width=640, height=480, max_frames=8, pose=pose), seed=1)
+    table, registration = extract_video(video, ExtractConfig())
+    assert abs(registration.pose.px_per_mm - 12.0) < 0.2
+    assert not table["ok"].any()
+    assert table["reason"].str.startswith("array too small in the image").all()
+    said = [w for w in table.attrs["warnings"] if "too small" in w]
+    assert len(said) == 1 and "film closer" in said[0]
