@@ -172,8 +172,8 @@ AUTO_MIN_PX_PER_MM, AUTO_MAX_PX_PER_MM_PER_640 = 10.0, 80.0
 def search_range(cfg: RegistrationConfig, width: int, height: int) -> tuple[float, float]:
     """The scales (px/mm) :func:`register` searches in a ``width`` × ``height`` (px) frame:
     ``cfg.px_per_mm_range``, or when it is None, 10 px/mm up to 80 px/mm per 640 px of the
-    larger side (never less than 80). At a given scale the phantom covers the same share of a
-    frame whatever its size in px/mm per px, so the largest scale at which enough of its walls
+    larger side (never less than 80). How much of the frame the phantom fills depends on its
+    scale against the frame's size in px, so the largest scale at which enough of its walls
     are in view grows with the frame."""
     if cfg.px_per_mm_range is not None:
         return cfg.px_per_mm_range
