@@ -965,8 +965,10 @@ def _copy_window(out: np.ndarray, image: np.ndarray, top: int, left: int) -> Non
         out[r0 - top : r1 - top, c0 - left : c1 - left] = image[r0:r1, c0:c1]
 
 
-def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> list[_Proposal]:
-    """Global search over scale, rotation, mirror and centre (see module docstring).
+def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig,
+                   scale_range: tuple[float, float]) -> list[_Proposal]:
+    """Global search over scale (``scale_range``, px/mm), rotation, mirror and centre (see
+    module docstring).
 
     For each scale the orientation field is shrunk so the phantom would appear at
     ``coarse_px_per_mm``; the rotation-averaged template (a ring detector) is correlated with
@@ -982,7 +984,7 @@ def _coarse_search(edges: _Edges, model: WallModel, cfg: RegistrationConfig) -> 
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
-    lo, hi = cfg.px_per_mm_range
+    lo, hi = scale_range
     n_scales = max(1, int(math.ceil(math.log(hi / lo) / math.log1p(cfg.coarse_scale_step))) + 1)
     scales = np.geomspace(lo, hi, n_scales)
     fields = [_shrunk_field(edges.pyramid, s / cfg.coarse_px_per_mm) for s in scales]
@@ -1504,14 +1506,15 @@ _EXCELLENT = 0.85
 
 
 def _best_pose(
-    edges: _Edges, model: WallModel, cfg: RegistrationConfig
+    edges: _Edges, model: WallModel, cfg: RegistrationConfig, scale_range: tuple[float, float]
 ) -> tuple[CameraPose, float, WallFit] | None:
-    """Global search, refinement of the best proposals, and the best-supported result.
+    """Global search over ``scale_range`` (px/mm), refinement of the best proposals, and the
+    best-supported result.
 
     Returns the pose, the wall lines' half width (px) and the fit, or None.
     """
-    proposals = _coarse_search(edges, model, cfg)
-    lo, hi = cfg.px_per_mm_range
+    proposals = _coarse_search(edges, model, cfg, scale_range)
+    lo, hi = scale_range
     layers = _edge_layers(edges.edge_map)
 
     def fit(pose: CameraPose, spacing_px: float, half_width: float | None) -> WallFit:
@@ -1571,10 +1574,10 @@ def register(
     frames = _frame_list(gray_frames)
     gray = combine_frames(frames, cfg.combine)
     h, w = gray.shape
-    cfg = replace(cfg, px_per_mm_range=search_range(cfg, w, h))
-    scales = f"{cfg.px_per_mm_range[0]:g}-{cfg.px_per_mm_range[1]:g} px/mm"  # named when nothing is found
+    scale_range = search_range(cfg, w, h)
+    scales = f"{scale_range[0]:g}-{scale_range[1]:g} px/mm"  # named when nothing is found
     gx, gy, sigma, magnitude = _gradients_for_canny(gray, cfg.edge_sigma_px)
-    levels = max(0, int(math.floor(math.log2(max(cfg.px_per_mm_range[1], 1.0) / 3.0))))
+    levels = max(0, int(math.floor(math.log2(max(scale_range[1], 1.0) / 3.0))))
     em = edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px, magnitude=magnitude)
     edges = _prepare_edges(em, levels)
     if len(edges.points) < 50:
@@ -1582,7 +1585,7 @@ def register(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
         )
     model = wall_model(phantom, spacing_mm=0.02)
-    best = _best_pose(edges, model, cfg)
+    best = _best_pose(edges, model, cfg, scale_range)
     if best is None:
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
