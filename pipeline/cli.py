@@ -219,7 +219,7 @@ def _run_annotate(args: argparse.Namespace) -> int:
 def _configure_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=positive_int, default=None, metavar="N",
                    help="frames of the rendered video (default 200; 30 with --quick)")
-    p.add_argument("--size", default=None, metavar="WxH",
+    p.add_argument("--size", type=_size, default=None, metavar="WxH",
                    help="size (px) of the rendered video, e.g. 1280x720 (default 640x480): the same phantom "
                         "in a larger frame")
     p.add_argument("--seed", type=int, default=0, help="render and dataset seed (default 0)")
@@ -257,15 +257,8 @@ def _run_bench(args: argparse.Namespace) -> int:
         raise UsageError(f"tympani bench: --workers must be integers separated by commas, not {args.workers!r}") from None
     if workers is not None and (not workers or min(workers) < 1):
         raise UsageError("tympani bench: --workers counts must be >= 1")
-    size = None
-    if args.size is not None:
-        try:
-            width, height = (int(v) for v in args.size.lower().split("x"))
-        except ValueError:
-            raise UsageError(f"tympani bench: --size must be WIDTHxHEIGHT in px, e.g. 1280x720, not {args.size!r}") from None
-        size = (width, height)
     config = BenchConfig.quick() if args.quick else BenchConfig()
-    changes = {"n_frames": args.frames, "size": size, "trials": args.trials, "workers": workers,
+    changes = {"n_frames": args.frames, "size": args.size, "trials": args.trials, "workers": workers,
                "batch_videos": args.batch_videos, "repeats": args.repeats}
     try:
         config = replace(config, seed=args.seed, long_factor=args.long_factor,

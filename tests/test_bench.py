@@ -110,9 +110,9 @@ def test_render_bench_video_size_keeps_the_phantom(tmp_path):
 
 def test_bench_command_rejects_bad_sizes(capsys):
     assert main(["bench", "--size", "1280"]) == 2
-    assert "--size must be WIDTHxHEIGHT" in capsys.readouterr().err
+    assert "--size: '1280' is not WIDTHxHEIGHT" in capsys.readouterr().err
     assert main(["bench", "--size", "32x32"]) == 2
-    assert "size must be (width, height)" in capsys.readouterr().err
+    assert "frames must be at least 320x240" in capsys.readouterr().err
     assert main(["bench", "--skip", "bogus"]) == 2
     assert "unknown --skip" in capsys.readouterr().err
     assert main(["bench", "--trials", "1"]) == 2
