@@ -26,7 +26,10 @@ show as intensity edges (thin lines, region boundaries or both):
    (the half width of the wall lines) being estimated with the pose. This centres thin
    lines even when only one of their sides shows, handles region boundaries (``h = 0``),
    and keeps the walls of neighbouring turns (0.24 mm apart, edges facing the other way)
-   from pulling on each other.
+   from pulling on each other. Proposals are refined to half resolution until one fits
+   nearly all the walls, then the best few to full resolution; when full resolution does not
+   confirm any, the remaining proposals are refined too (a deep array's edges can pass the
+   half-resolution fit in a wrong pose).
 4. **Verification**: along each wall normal, the distance from where the wall's edge is
    expected to the nearest Canny edge of matching orientation. Too few inliers, too little
    of the channel in view or too large a residual mean no phantom: :class:`RegistrationError`
@@ -1522,26 +1525,35 @@ def _best_pose(
         tol = cfg.inlier_tol_px + (cfg.max_line_half_width_px if half_width is None else 0.0)
         return _wall_fit_from(pose, layers, sub, half_width, tol)
 
-    # proposals to half resolution (stop early once one explains nearly all the walls) ...
-    coarse = []
-    for prop in proposals:
-        pose = _refine_coarse(prop.pose, edges, model, cfg)
-        if 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
-            matched = fit(pose, 3.0, None).matched_length_mm
-            coarse.append(_Proposal(matched, pose))
-            if matched >= _EXCELLENT * model.length_mm:
-                break
-    coarse.sort(key=lambda p: -p.score)
-    # ... and the best supported few to full resolution
+    excellent = _EXCELLENT * model.length_mm
+    remaining = list(proposals)
+    coarse: list[_Proposal] = []
+    refined: list[_Proposal] = []  # those of ``coarse`` already refined at full resolution
     best = None
-    for prop in _distinct(coarse, cfg.n_fine):
-        pose, half_width = _refine_fine(prop.pose, edges, model, cfg)
-        result = fit(pose, cfg.model_spacing_px, half_width)
-        if best is None or result.matched_length_mm > best[2].matched_length_mm:
-            best = (pose, half_width, result)
-        if result.matched_length_mm >= _EXCELLENT * model.length_mm:
-            break
-    return best
+    while True:
+        # proposals to half resolution (until one explains nearly all the walls) ...
+        while remaining:
+            pose = _refine_coarse(remaining.pop(0).pose, edges, model, cfg)
+            if 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
+                matched = fit(pose, 3.0, None).matched_length_mm
+                coarse.append(_Proposal(matched, pose))
+                if matched >= excellent:
+                    break
+        # ... and the best supported few not yet refined to full resolution
+        ranked = _distinct(sorted(coarse, key=lambda p: -p.score), len(coarse))
+        for prop in [p for p in ranked if not any(p is q for q in refined)][: cfg.n_fine]:
+            refined.append(prop)
+            pose, half_width = _refine_fine(prop.pose, edges, model, cfg)
+            result = fit(pose, cfg.model_spacing_px, half_width)
+            if best is None or result.matched_length_mm > best[2].matched_length_mm:
+                best = (pose, half_width, result)
+            if result.matched_length_mm >= excellent:
+                return best
+        # Not confirmed at full resolution (the half-resolution fit is lenient: an array deep
+        # in the channel, its edges taken for walls, can pass it in a wrong pose): go on
+        # with the proposals left, if any.
+        if not remaining:
+            return best
 
 
 def register(
