@@ -20,8 +20,13 @@ passed to ``measure_frame`` in place of the registration. Every
 ``recheck_every`` frames ``vision.registration.check`` measures the registration's residual on
 the current frame; above ``residual_px * recheck_factor + recheck_margin_px`` the camera is taken
 to have moved and the video is registered again on the next ``register_frames`` frames (the
-frames since the last check were measured with the old registration). Each registration is
-recorded; the angles table's ``reg_epoch`` column says which one a frame used.
+frames since the last check were measured with the old registration; :func:`extract_video`
+goes back over them, see :func:`remeasure_after_moves`). When that registration fails, the
+registration is *lost*: frames are not measured (``ok`` false, with the reason) and the check
+and registration are tried again after ``register_frames`` frames, then twice, four times ...
+as many, at most ``recheck_every``, until the old registration fits again (the view was only
+blocked) or a new one succeeds. Each registration is recorded; the angles table's
+``reg_epoch`` column says which one a frame used.
 """
 
 from __future__ import annotations
@@ -178,6 +183,13 @@ class ExtractLog:
     in_force : list of tuple
         ``(registration, plan)`` for each entry of ``registrations`` (the plan is what the
         measurement gets, see :func:`measure_frames`).
+    lost : list of dict
+        One entry per span in which the registration was lost (a failed check, then a failed
+        registration): ``frame`` (the failed check), ``in_force`` (index of the registration
+        then in force), ``attempts`` (failed registrations), ``ended`` ("check": the old
+        registration fitted again, "registered": a new one succeeded, None: the video ended)
+        ``ended_at`` (frame, or None), ``reason`` (the rows' reason) and ``retry_at`` (the next
+        frame tried); :func:`remeasure_after_moves` adds ``moved_at_frame``.
     """
 
     registrations: list[dict] = field(default_factory=list)
@@ -189,6 +201,7 @@ class ExtractLog:
     n_exceptions: int = 0
     first_registration: Any = None
     in_force: list[tuple[Any, Any]] = field(default_factory=list)
+    lost: list[dict] = field(default_factory=list)
 
     def add_time(self, stage: str, seconds: float) -> None:
         self.timing_s[stage] = self.timing_s.get(stage, 0.0) + float(seconds)
@@ -324,6 +337,7 @@ def measure_frames(
     plan: Any = None  # what measure_frame gets as its registration (see register_pending)
 
     queue: list[tuple[Frame, np.ndarray]] = []  # frames waiting to be measured with the current plan
+    lost: dict | None = None  # the open entry of log.lost while the registration is lost
 
     def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float, result: dict | None = None
                  ) -> MeasuredFrame:
@@ -344,6 +358,12 @@ def measure_frames(
         log.n_frames += 1
         log.n_ok += bool(row["ok"])
         return MeasuredFrame(frame, gray, registration, epoch, m, row)
+
+    def unmeasured(frame: Frame, gray: np.ndarray, reason: str) -> MeasuredFrame:
+        """The row of a frame left unmeasured (``ok`` false) for ``reason``."""
+        row = _frame_row(trial, frame, {"ok": False, "reason": reason}, epoch)
+        log.n_frames += 1
+        return MeasuredFrame(frame, gray, registration, epoch, None, row)
 
     def measure(frame: Frame, gray: np.ndarray) -> MeasuredFrame:
         t0 = time.perf_counter()
@@ -374,7 +394,10 @@ def measure_frames(
         return flush() if full else []
 
     def register_pending() -> None:
-        nonlocal registration, plan, epoch, last_registered_at
+        """Register on the pending frames; a failure after the first registration opens (or
+        extends) a lost span instead of raising."""
+        nonlocal registration, plan, epoch, last_registered_at, lost
+        at = pending[0][0].index
         t0 = time.perf_counter()
         try:
             frames_used = [g for _, g in pending]
@@ -388,11 +411,22 @@ def measure_frames(
                     problem = getattr(exc, "problem", None) or " ".join(str(exc).split())
                     raise InputError(source.path, f"registration failed: {problem}") from exc
                 raise
-            log.warnings.append(
-                f"re-registration at frame {pending[0][0].index} failed ({one_line(exc)}); kept the previous one"
-            )
-            new = registration
+            if lost is None:
+                lost = {"frame": at, "in_force": len(log.in_force) - 1, "attempts": 0, "ended": None,
+                        "ended_at": None, "reason": f"registration lost: the check at frame {at} failed and "
+                                                   f"registering again failed ({one_line(exc)})"}
+                log.lost.append(lost)
+                log.warnings.append(f"re-registration at frame {at} failed ({one_line(exc)}); frames are not "
+                                    "measured until the old registration fits again or a new one succeeds")
+            lost["attempts"] += 1
+            # try again after register_frames frames, then twice, four times ... as many
+            gap = min(cfg.register_frames * 2 ** (lost["attempts"] - 1), max(cfg.recheck_every, cfg.register_frames))
+            lost["retry_at"] = pending[-1][0].index + 1 + gap
+            return
         else:
+            if lost is not None:
+                lost.update(ended="registered", ended_at=at)
+                lost = None
             epoch += 1
             if log.first_registration is None:
                 log.first_registration = new
@@ -401,19 +435,27 @@ def measure_frames(
             )
         finally:
             log.add_time("register", time.perf_counter() - t0)
-        if new is not registration:
-            plan = new
-            prepare = getattr(angles_mod, "prepare_measurement", None)
-            if prepare is not None:  # per-registration precomputation, passed in its place
-                t0 = time.perf_counter()
-                plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
-                log.add_time("prepare", time.perf_counter() - t0)
-                refusal = getattr(plan, "refusal", None)
-                if refusal:  # every frame of this registration fails the same way: say it once
-                    log.warnings.append(f"frames from {pending[0][0].index} on: {refusal}")
-            log.in_force.append((new, plan))
+        plan = new
+        prepare = getattr(angles_mod, "prepare_measurement", None)
+        if prepare is not None:  # per-registration precomputation, passed in its place
+            t0 = time.perf_counter()
+            plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
+            log.add_time("prepare", time.perf_counter() - t0)
+            refusal = getattr(plan, "refusal", None)
+            if refusal:  # every frame of this registration fails the same way: say it once
+                log.warnings.append(f"frames from {at} on: {refusal}")
+        log.in_force.append((new, plan))
         registration = new
-        last_registered_at = pending[0][0].index
+        last_registered_at = at
+
+    def after_registering() -> Iterator[MeasuredFrame]:
+        """The pending frames, measured with the new registration or left unmeasured when it
+        is lost."""
+        for f, g in pending:
+            if lost is None:
+                yield from enqueue(f, g)
+            else:
+                yield unmeasured(f, g, lost["reason"])
 
     bar = None
     if progress:
@@ -436,7 +478,10 @@ def measure_frames(
             if bar is not None:
                 bar.update(1)
             if registration is not None and not pending:
-                if not _check_due(cfg, frame.index, last_registered_at):
+                if lost is not None and frame.index < lost["retry_at"]:
+                    yield unmeasured(frame, gray, lost["reason"])
+                    continue
+                if lost is None and not _check_due(cfg, frame.index, last_registered_at):
                     yield from enqueue(frame, gray)
                     continue
                 t2 = time.perf_counter()
@@ -445,6 +490,11 @@ def measure_frames(
                 log.checks.append((frame.index, residual))
                 threshold = cfg.recheck_threshold_px(registration)
                 if residual <= threshold:
+                    if lost is not None:  # the old registration fits again: the view was blocked, not moved
+                        lost.update(ended="check", ended_at=frame.index)
+                        log.warnings.append(f"frames {lost['frame']}-{frame.index - 1} not measured (registration "
+                                            f"lost); the old registration fits again from frame {frame.index}")
+                        lost = None
                     yield from enqueue(frame, gray)
                     continue
                 # NaN or too large: the camera moved; register again from this frame on
@@ -453,13 +503,12 @@ def measure_frames(
             if len(pending) >= cfg.register_frames:
                 yield from flush()  # the frames before these, with the plan they were measured against
                 register_pending()
-                for f, g in pending:
-                    yield from enqueue(f, g)
+                yield from after_registering()
                 pending = []
         yield from flush()
         if pending:  # video (or its rest) shorter than register_frames
             register_pending()
-            queue.extend(pending)
+            yield from after_registering()
             yield from flush()
             pending = []
     finally:
@@ -527,7 +576,8 @@ def extract_video(
     table : DataFrame
         One row per decoded frame: :data:`ANGLE_COLUMNS`, then the measurement's extra scalar
         columns, then ``reg_epoch``. Failed frames have ``ok`` False, NaN angles and a
-        ``reason``. ``table.attrs`` holds ``registrations``, ``checks``, ``warnings``
+        ``reason``. ``table.attrs`` holds ``registrations``, ``lost`` (the spans in which the
+        registration was lost, see :class:`ExtractLog`), ``checks``, ``warnings``
         (decoder, measurement, and the camera moves whose frames :func:`remeasure_after_moves`
         measured again), ``timing_s`` and ``source`` (see :class:`ExtractLog`).
     registration : Registration
@@ -551,6 +601,7 @@ def extract_video(
     table["ok"] = table["ok"].astype(bool)
     table.attrs.update(
         registrations=log.registrations,
+        lost=[{k: v for k, v in span.items() if k not in ("in_force", "retry_at")} for span in log.lost],
         checks=log.checks,
         warnings=[*source.warnings, *log.warnings, *moves],
         timing_s=log.timing_s,
@@ -561,15 +612,17 @@ def extract_video(
 
 def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig,
                           trial: str) -> list[str]:
-    """Measure again, with the new registration, the frames seen after the camera moved but
-    before a check noticed it.
+    """Go back over the frames seen after the camera moved but before a check noticed it.
 
     A check every ``cfg.recheck_every`` frames finds a move late, so the frames between the move
-    and the check were measured with the old pose. For each re-registration that a check
-    triggered, the frames after the last known-good one (the previous registration's own frames or
-    its last passing check) are decoded again, in order, and checked against the old
-    registration; from the first that fails, they are measured with the new registration and get
-    its ``reg_epoch``. That entry of ``log.registrations`` gets ``moved_at_frame``.
+    and the check were measured with the old pose. For each failed check that led to a new
+    registration, and for each lost span that did not end in one (see :func:`measure_frames`),
+    the frames after the last known-good one (the old registration's own frames or its last
+    passing check) are decoded again, in order, and checked against the old registration. From
+    the first that fails on (the move), each frame is measured with the new registration, and
+    gets its ``reg_epoch``, when it fits that one; otherwise (the camera still moving, the view
+    blocked, or no new registration) it is marked not ok. That entry of ``log.registrations``
+    (or of ``log.lost``) gets ``moved_at_frame``.
 
     Parameters
     ----------
@@ -578,7 +631,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     rows : list of dict
         The frame rows of :func:`measure_frames`, in frame order; replaced in place.
     log : ExtractLog
-        Its registrations, checks and ``in_force``.
+        Its registrations, checks, ``in_force`` and lost spans.
     cfg : ExtractConfig
         Settings (check threshold, phantom, measurement).
     trial : str
@@ -587,7 +640,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     Returns
     -------
     list of str
-        One line per re-measured span.
+        One line per span gone over in which the camera was found to have moved.
     """
     import vision.angles as angles_mod  # looked up at call time: replaceable in tests
     import vision.registration as reg_mod
@@ -595,41 +648,60 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     notes: list[str] = []
     regs = log.registrations
     at = {int(r["frame"]): i for i, r in enumerate(rows)}
-    for j in range(1, min(len(regs), len(log.in_force))):
-        if regs[j].get("trigger") != "check":
-            continue
-        moved_at = int(regs[j]["frame"])
-        good = int(regs[j - 1]["frame"]) + int(regs[j - 1].get("n_frames_used", 1)) - 1
-        good = max([good, *(f for f, _ in log.checks if good < f < moved_at)])  # checks before moved_at passed
-        if good + 1 >= moved_at:
-            continue
-        (old, _), (_, plan) = log.in_force[j - 1], log.in_force[j]
+    # (registration in force before, frame where the move was seen, new registration or None, entry)
+    spans = [(j - 1, int(regs[j]["frame"]), j, regs[j]) for j in range(1, min(len(regs), len(log.in_force)))
+             if regs[j].get("trigger") == "check"]
+    spans += [(int(lost["in_force"]), int(lost["frame"]), None, lost) for lost in log.lost
+              if lost.get("ended") != "registered"]
+    for i_old, seen_at, i_new, entry in sorted(spans, key=lambda sp: sp[1]):
+        old = log.in_force[i_old][0]
         threshold = cfg.recheck_threshold_px(old)
-        first = None
+        good = int(regs[i_old]["frame"]) + int(regs[i_old].get("n_frames_used", 1)) - 1
+        # the old registration's last passing check before the move was seen
+        good = max([good, *(f for f, r in log.checks if good < f < seen_at and r <= threshold)])
+        if good + 1 >= seen_at:
+            continue
+        new = None if i_new is None else log.in_force[i_new]
+        new_threshold = None if new is None else cfg.recheck_threshold_px(new[0])
+        epoch = int(regs[i_old]["epoch"] if i_new is None else regs[i_new]["epoch"])
+        first, fitted = None, 0
         frames = iter(source)
         try:
             for frame in frames:
                 if frame.index <= good:
                     continue
-                if frame.index >= moved_at:
+                if frame.index >= seen_at:
                     break
                 gray = to_gray(frame.image)
                 if first is None:
                     if float(reg_mod.check(gray, old, cfg.phantom)) <= threshold:  # NaN: moved
                         continue
                     first = frame.index
-                m = _try_measure(angles_mod, gray, plan, cfg)
-                result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"} if isinstance(m, Exception)
-                          else m.to_row())
-                rows[at[frame.index]] = _frame_row(trial, frame, result, int(regs[j]["epoch"]))
+                if new is not None and float(reg_mod.check(gray, new[0], cfg.phantom)) <= new_threshold:
+                    m = _try_measure(angles_mod, gray, new[1], cfg)
+                    result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
+                              if isinstance(m, Exception) else m.to_row())
+                    fitted += 1
+                else:  # the camera still moving, the view blocked, or no new registration
+                    result = {"ok": False, "reason": f"the view changed at frame {first} (seen by the check at "
+                                                     f"{seen_at}) and no registration fits this frame"}
+                rows[at[frame.index]] = _frame_row(trial, frame, result, epoch)
         finally:
             close = getattr(frames, "close", None)
             if close is not None:
                 close()
-        regs[j]["moved_at_frame"] = first if first is not None else moved_at
-        if first is not None:
-            notes.append(f"camera moved at frame {first} (seen by the check at {moved_at}); frames {first}-"
-                         f"{moved_at - 1} measured again with the new registration")
+        entry["moved_at_frame"] = first if first is not None else seen_at
+        if first is None:
+            continue
+        span = f"camera moved at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1}"
+        if new is None:
+            notes.append(f"view changed at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1} "
+                         "marked not ok (no registration fits them)")
+        elif fitted == seen_at - first:
+            notes.append(f"{span} measured again with the new registration")
+        else:
+            notes.append(f"{span}: {fitted} measured again with the new registration, "
+                         f"{seen_at - first - fitted} marked not ok (they fit neither registration)")
     return notes
 
 
@@ -663,7 +735,7 @@ def process_video(
 
     Writes ``<trial>.angles.csv``, ``<trial>.registration.json`` (SPEC §6 keys of the first
     registration, plus ``registrations``: every registration used, with the frame it started
-    at) and ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
+    at, and ``lost``: the spans in which the registration was lost) and ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
     ``out_dir``, each atomically. If interrupted while writing, the files written so far in this
     call are removed again.
 
@@ -707,7 +779,7 @@ def process_video(
     warnings = list(table.attrs["warnings"])
     n_ok = int(table["ok"].sum())
     seconds = time.perf_counter() - t0
-    reg_record = {**registration.to_dict(), "registrations": registrations}
+    reg_record = {**registration.to_dict(), "registrations": registrations, "lost": table.attrs["lost"]}
     prov = provenance(
         path,
         {"extract": cfg, "fps": fps, "trial": name},

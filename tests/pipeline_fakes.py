@@ -6,6 +6,9 @@ fakes driven by simple image statistics:
 
 - registration fails ("no phantom found") on a black first frame;
 - a frame whose top-left 8x8 block is white fails the registration check (camera bumped);
+- a frame whose bottom-right 8x8 block is black while the frame is not dark is *blocked*: it
+  fails every registration check and registering on it fails (too little of the phantom in
+  view);
 - measurement: frames darker than mean 20 are not ok; otherwise theta_tip = mean/100,
   theta_bot = mean/200 (rad) and an extra column ``depth_mm``.
 
@@ -72,17 +75,25 @@ class FakeMeasurement:
                     ok=self.ok, reason=self.reason, **self.extras)
 
 
+def _blocked(g: np.ndarray) -> bool:
+    return g[-8:, -8:].mean() < 5 and g[:8, -8:].mean() > 20
+
+
 def fake_register(gray_frames, phantom, cfg=None):
     assert gray_frames and all(g.ndim == 2 and g.dtype == np.uint8 for g in gray_frames)
     g = gray_frames[0]
     if g.mean() < 5:
         raise FakeRegistrationError("no phantom found")
+    if _blocked(g):
+        raise FakeRegistrationError("too little of the phantom in view")
     bumped = g[:8, :8].mean() > 200
     pose = CameraPose(g.shape[1] / 2 + (5.0 if bumped else 0.0), g.shape[0] / 2, 0.0, 4.0, False)
     return FakeRegistration(pose, 0.5, len(gray_frames))
 
 
 def fake_check(gray, registration, phantom) -> float:
+    if _blocked(gray):
+        return 50.0
     bumped = gray[:8, :8].mean() > 200
     registered_bumped = registration.pose.centre_x_px != gray.shape[1] / 2
     return 50.0 if bumped != registered_bumped else 0.4
@@ -142,22 +153,27 @@ def fake_config(**kwargs):
 # --------------------------------------------------------------------------- tiny videos
 
 
-def frame_image(i: int, *, dark: bool = False, bumped: bool = False, w: int = W, h: int = H) -> np.ndarray:
-    """A BGR frame whose brightness encodes ``i`` (30 + 10 i), or black when ``dark``."""
+def frame_image(i: int, *, dark: bool = False, bumped: bool = False, blocked: bool = False, w: int = W,
+                h: int = H) -> np.ndarray:
+    """A BGR frame whose brightness encodes ``i`` (30 + 10 i), or black when ``dark``; the
+    bump and block markers as in the module docstring (a bump shows up to ``i`` = 17)."""
     img = np.full((h, w, 3), 0 if dark else min(30 + 10 * i, 250), np.uint8)
     if bumped:
         img[:8, :8] = 255
+    if blocked:
+        img[-8:, -8:] = 0
     return img
 
 
 def write_video(path: Path, n: int = 20, *, fps: float = 25.0, fourcc: str = "mp4v", dark=(), bumped_from=None,
-                all_dark: bool = False) -> Path:
-    """Write a small video with ``cv2.VideoWriter``; frames in ``dark`` are black."""
+                all_dark: bool = False, blocked=()) -> Path:
+    """Write a small video with ``cv2.VideoWriter``; frames in ``dark`` are black, those in
+    ``blocked`` blocked, those from ``bumped_from`` on bumped."""
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (W, H))
     assert writer.isOpened()
     for i in range(n):
         bumped = bumped_from is not None and i >= bumped_from
-        writer.write(frame_image(i, dark=all_dark or i in dark, bumped=bumped))
+        writer.write(frame_image(i, dark=all_dark or i in dark, bumped=bumped, blocked=i in blocked))
     writer.release()
     return path
 

@@ -176,6 +176,66 @@ def test_camera_bump_triggers_re_registration(tmp_path, monkeypatch):
     assert len(table) == 24 and reg.pose.centre_x_px == fakes.W / 2  # the first registration is returned
 
 
+def _rows(table, frames) -> list[tuple[int, bool, int]]:
+    """(frame, ok, reg_epoch) of the given frames."""
+    sub = table[table["frame"].isin(list(frames))]
+    return [(int(f), bool(ok), int(e)) for f, ok, e in zip(sub["frame"], sub["ok"], sub["reg_epoch"])]
+
+
+def test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits(tmp_path, monkeypatch):
+    """Bumped at 7 into a view that cannot be registered (7-9), registrable again from 10. The
+    check at 9 fails and registering there fails: the registration is lost, frames are not
+    measured with the old pose, and the next try (frame 11) registers. Going back, 7-9 fit
+    neither registration (not ok) and 10 fits the new one."""
+    fakes.install(monkeypatch)
+    cfg = fakes.fake_config(recheck_every=3, register_frames=1)
+    video = fakes.write_video(tmp_path / "l.mp4", n=18, bumped_from=7, blocked={7, 8, 9})
+    table, _ = extract_video(video, cfg)
+    assert len(table) == 18
+    assert _rows(table, range(7)) == [(f, True, 0) for f in range(7)]
+    assert _rows(table, range(7, 10)) == [(f, False, 1) for f in range(7, 10)]
+    assert table.loc[table["frame"].between(7, 9), "reason"].str.contains("no registration fits this frame").all()
+    assert _rows(table, range(10, 18)) == [(f, True, 1) for f in range(10, 18)]
+    regs = table.attrs["registrations"]
+    assert [(r["frame"], r["trigger"]) for r in regs] == [(0, "start"), (11, "check")] and regs[1]["moved_at_frame"] == 7
+    warnings = table.attrs["warnings"]
+    assert any(w.startswith("re-registration at frame 9 failed (") and "too little of the phantom in view" in w
+               for w in warnings)
+    assert any("frames 7-10: 1 measured again with the new registration, 3 marked not ok" in w for w in warnings)
+
+
+def test_registration_lost_to_the_end_marks_the_rest_not_ok(tmp_path, monkeypatch):
+    """Bumped at 7 into a view that never registers: every frame from the move on is not ok
+    (7-8 found going back; 9 on while lost), and the tries back off (9, 11, 14; gaps 1, 2, 3
+    frames after each try, capped at ``recheck_every``)."""
+    fakes.install(monkeypatch)
+    cfg = fakes.fake_config(recheck_every=3, register_frames=1)
+    video = fakes.write_video(tmp_path / "e.mp4", n=18, bumped_from=7, blocked=set(range(7, 18)))
+    table, _ = extract_video(video, cfg)
+    assert _rows(table, range(7)) == [(f, True, 0) for f in range(7)]
+    assert _rows(table, range(7, 18)) == [(f, False, 0) for f in range(7, 18)]
+    reasons = table.set_index("frame")["reason"]
+    assert reasons[6] == "" and "no registration fits this frame" in reasons[8]
+    assert reasons[12].startswith("registration lost: the check at frame 9 failed and registering again failed (")
+    assert [f for f, _ in table.attrs["checks"]] == [3, 6, 9, 11, 14]
+    assert len(table.attrs["registrations"]) == 1
+
+
+def test_view_blocked_for_a_while_resumes_with_the_old_registration(tmp_path, monkeypatch):
+    """The view is blocked (8-10) but the camera did not move: the registration is lost at the
+    check at 9, and the next try (11) finds the old registration fits again."""
+    fakes.install(monkeypatch)
+    cfg = fakes.fake_config(recheck_every=3, register_frames=1)
+    video = fakes.write_video(tmp_path / "k.mp4", n=18, blocked={8, 9, 10})
+    table, _ = extract_video(video, cfg)
+    assert _rows(table, range(8)) == [(f, True, 0) for f in range(8)]
+    assert _rows(table, range(8, 11)) == [(f, False, 0) for f in range(8, 11)]
+    assert _rows(table, range(11, 18)) == [(f, True, 0) for f in range(11, 18)]
+    assert len(table.attrs["registrations"]) == 1
+    assert any("frames 9-10 not measured (registration lost); the old registration fits again from frame 11" in w
+               for w in table.attrs["warnings"])
+
+
 def test_registration_failure_is_input_error(tmp_path, fake_vision):
     with pytest.raises(InputError, match="registration failed: no phantom found"):
         extract_video(fakes.write_video(tmp_path / "black.mp4", n=6, all_dark=True), fake_vision)

@@ -21,7 +21,12 @@ zero-frame video                           ``test_zero_frame_video``
 frames of different sizes in a folder      ``test_folder_with_frames_of_different_sizes``;
                                            reader: test_frames.py ``test_folder_with_mixed_sizes_names_the_file``
 camera bumped mid-way (re-registration)    ``test_camera_bumped_mid_way_is_re_registered`` (real render);
-                                           plumbing: test_batch.py ``test_camera_bump_triggers_re_registration``
+                                           plumbing: test_batch.py ``test_camera_bump_triggers_re_registration``;
+                                           re-registration failing (view blocked):
+                                           ``test_view_blocked_mid_way_is_not_measured_then_resumes``; plumbing:
+                                           test_batch.py ``test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits``,
+                                           ``test_registration_lost_to_the_end_marks_the_rest_not_ok``,
+                                           ``test_view_blocked_for_a_while_resumes_with_the_old_registration``
 a frame where the array is hidden          ``test_frame_with_the_array_hidden``
 force log with NaN                         ``test_force_log_with_nan``; parser: test_forcelog.py
                                            ``test_nan_force_rows_are_dropped_and_recorded``,
@@ -238,9 +243,10 @@ def test_folder_with_frames_of_different_sizes(rendered, tmp_path, capsys):
     assert (out / f"{rendered['videos'][1].stem}.angles.csv").exists() and not (out / "frames.angles.csv").exists()
 
 
-def _render_frames(path: Path, spec, scenes, hide=()) -> pd.DataFrame:
+def _render_frames(path: Path, spec, scenes, hide=(), blank=()) -> pd.DataFrame:
     """Write ``spec``'s insertion to an mp4, frame i drawn by ``scenes(i)``; frames in ``hide``
-    get the inserted array painted over in the fluid's grey (as if lost in glare). Returns truth."""
+    get the inserted array painted over in the fluid's grey (as if lost in glare), frames in
+    ``blank`` are a uniform grey (a hand over the lens). Returns truth."""
     from vision.rendering import pose_at_depth
 
     fps = spec.effective_fps()
@@ -254,6 +260,8 @@ def _render_frames(path: Path, spec, scenes, hide=()) -> pd.DataFrame:
             px = np.round(scene.pose.to_image(state.centreline_mm)).astype(np.int32)
             thick = int(np.ceil(2.6 * state.radius_mm.max() * scene.pose.px_per_mm))
             cv2.polylines(img, [px], False, (spec.appearance.fluid,) * 3, thick)
+        if i in blank:
+            img[:] = 90
         writer.write(img)
         tr = state.truth
         rows.append(dict(frame=i, theta_tip=tr.theta_tip, theta_bot=tr.theta_bot))
@@ -296,6 +304,39 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
     bot_err = (ok["theta_bot"] - ok["theta_bot_true"]).abs()
     assert tip_err.median() < 0.02 and tip_err.max() < 0.06, tip_err.describe()
     assert bot_err.median() < 0.08, bot_err.describe()
+
+
+def test_view_blocked_mid_way_is_not_measured_then_resumes(tmp_path, capsys):
+    """Frames 13-19 show nothing (a hand over the lens); the camera did not move. The check at
+    15 fails and registering there fails: those frames are not measured with a pose nobody can
+    verify. The try at 21 finds the old registration fits again, and going back, 13-14 (seen
+    before the check) are marked not ok too."""
+    from vision.geometry import CameraPose
+    from vision.rendering import Nuisance, Scene, VideoSpec
+
+    pose = CameraPose(205.0, 148.0, 0.35, 17.0, False)
+    spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
+                     end_depth_mm=12.0, nuisance=Nuisance(noise_sigma=2.0), max_frames=30)
+    scene = Scene(pose, spec.width, spec.height, spec.appearance, spec.nuisance, rng=np.random.default_rng(1))
+    video = tmp_path / "blocked.mp4"
+    truth = _render_frames(video, spec, lambda i: scene, blank=set(range(13, 20)))
+    out = tmp_path / "out"
+    code, _, err = _run(capsys, "extract", video, "--out", out, "-q", "--recheck-every", "5", "--register-frames", "3")
+    line = _one_line(err)
+    assert code == 0 and line.startswith(f"tympani: warning: {video}: re-registration at frame 15 failed (")
+    assert line.endswith("; frames 15-20 not measured (registration lost); the old registration fits again from "
+                         "frame 21; view changed at frame 13 (seen by the check at 15); frames 13-14 marked not ok "
+                         "(no registration fits them)")
+    record = json.loads((out / "blocked.registration.json").read_text())
+    assert len(record["registrations"]) == 1
+    assert [(s["frame"], s["attempts"], s["ended"], s["ended_at"], s["moved_at_frame"]) for s in record["lost"]] == [
+        (15, 1, "check", 21, 13)]
+    table = pd.read_csv(out / "blocked.angles.csv").merge(truth, on="frame", suffixes=("", "_true"))
+    assert not table.loc[table["frame"].between(13, 20), "ok"].any()
+    rest = table[~table["frame"].between(13, 20)]
+    assert rest["ok"].all() and rest["reg_epoch"].eq(0).all()
+    tip_err = (rest["theta_tip"] - rest["theta_tip_true"]).abs()
+    assert tip_err.max() < 0.06, tip_err.describe()
 
 
 def test_frame_with_the_array_hidden(tmp_path, capsys):
