@@ -191,9 +191,11 @@ def test_high_magnification_ensemble() -> None:
     A band's border spans a length in mm along the channel, not a count of stations. Before the
     fluid estimate left out ``MeasureConfig.band_border_mm`` either side of it (2 coarse stations
     only), band brightness entered the fluid level at 62 and 65 px/mm, and two of these frames
-    had their tip 0.72 and 0.15 rad too far on. When written: theta_tip median 0.0007 rad (max
-    0.0016), theta_bot median 0.0058 rad (p90 0.051, max 0.066); 96 such frames gave maxima
-    of 0.0023 and 0.069 rad.
+    had their tip 0.72 and 0.15 rad too far on. When written: theta_tip median 0.0012 rad (max
+    0.0027), theta_bot median 0.0097 rad (p90 0.058, max 0.070); 96 such frames gave maxima
+    of 0.0031 and 0.099 rad (with steps of 1 px at every scale, before
+    ``MeasureConfig.min_step_mm``: 0.0007 / 0.0016 / 0.0058 / 0.066, and 96 frames 0.0023 and
+    0.069).
     """
     rng = np.random.default_rng(7)
     tip, bot = [], []
@@ -213,6 +215,33 @@ def test_high_magnification_ensemble() -> None:
     assert max(tip) <= 0.02, np.argmax(tip)
     assert max(bot) <= 0.2, np.argmax(bot)
     assert np.median(bot) <= 0.04
+
+
+ZOOMED_CLEAN = [  # (pose, appearance, depth mm, policy): clean 1920x1440 frames, random draws of seed 8
+    (CameraPose(1103.70, 949.62, 1.07696, 74.8186, True),
+     Appearance(171.43, 127.49, "both", 71.27, 2.092, 24.50, 153.33, (0.9757, 0.9806, 1.0565)), 4.0269,
+     ContactPolicy(1.63205, 0.59958, 0.6, ArrayShape(0.65135, 0.40096, 0.66999, 1.0))),
+    (CameraPose(1140.42, 1078.36, 1.47031, 83.2548, True),
+     Appearance(214.59, 172.21, "both", 81.96, 1.244, 120.64, 246.85, (0.9759, 0.8837, 0.8810)), 9.5212,
+     ContactPolicy(1.59753, 0.40198, 0.6, ArrayShape(0.36575, -0.60409, 0.82721, 1.0))),
+]
+
+
+@pytest.mark.parametrize("case", range(len(ZOOMED_CLEAN)))
+def test_zoomed_in_clean_frames_keep_the_tip(case: int) -> None:
+    """Clean frames at 75 and 83 px/mm. With stations and offsets 1 px apart at any scale, the
+    measurement's windows counted in stations shrank in mm as the camera zoomed in, and on
+    these two the tip came out 0.86 and 0.85 rad too far on (3 of 32 random 1920x1440 frames
+    at 60-110 px/mm, seed 8). ``MeasureConfig.min_step_mm`` keeps the steps at least 0.03 mm,
+    so above 33 px/mm the measurement sees a frame as it would at 33 px/mm (measured: those
+    32 frames all within 0.0042 rad (tip) and 0.062 rad (bot), in half the time)."""
+    pose, appearance, depth, policy = ZOOMED_CLEAN[case]
+    state = pose_at_depth(depth, policy)
+    frame = _gray(Scene(pose, 1920, 1440, appearance, Nuisance(), rng=np.random.default_rng(0)).render(state))
+    m = measure_frame(frame, prepare_measurement(_reg(pose), frame.shape))
+    assert m.ok, m.reason
+    assert abs(m.theta_tip - state.truth.theta_tip) < 0.01
+    assert abs(m.theta_bot - state.truth.theta_bot) < 0.05
 
 
 # --------------------------------------------------------------------------- representative triples

@@ -215,6 +215,11 @@ class MeasureConfig:
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float
         Largest spacing (px) of the strip's offsets across the channel (where it is widest).
+    min_step_mm : float
+        Least spacing (mm) of the stations and of the offsets: above ``1 / min_step_mm`` px/mm
+        (33 px/mm) the steps grow past ``station_step_px`` and ``offset_step_px``, so that
+        a frame's cost stops growing with the magnification (at 36-68 px/mm: 1.7-2.1x less
+        time, theta_tip max error 0.0016 -> 0.0056 rad, see ``tests/test_angles.py``).
     coarse_stride : int
         Every how many offsets and stations the coarse strip (used to find the array) keeps.
     lateral_extent : float
@@ -290,6 +295,7 @@ class MeasureConfig:
     contact_tol_mm: float = 0.05
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
+    min_step_mm: float = 0.03
     coarse_stride: int = 2
     lateral_extent: float = 1.1
     wall_margin_px: float = 3.5
@@ -612,7 +618,7 @@ def prepare_measurement(
     Stations run along the channel's backbone from the outer end of the entry channel through
     ``theta_start`` to ``theta_end``, ``cfg.station_step_px`` apart; offsets run across it at
     normalised lateral positions ``u`` (−1 inner wall, +1 outer wall), at most
-    ``cfg.offset_step_px`` apart.
+    ``cfg.offset_step_px`` apart (both at least ``cfg.min_step_mm``).
 
     Parameters
     ----------
@@ -632,9 +638,10 @@ def prepare_measurement(
     pose = registration if isinstance(registration, CameraPose) else registration.pose
     ppm = float(pose.px_per_mm)
     height, width = int(image_shape[0]), int(image_shape[1])
-    p, pts, nrm, half, i_start = _channel_stations(phantom, cfg.station_step_px / ppm)
+    p, pts, nrm, half, i_start = _channel_stations(phantom, max(cfg.station_step_px / ppm, cfg.min_step_mm))
     stride = max(1, int(cfg.coarse_stride))
-    n_u = int(np.ceil(2 * cfg.lateral_extent * half.max() * ppm / cfg.offset_step_px / stride)) * stride + 1
+    offset_step_px = max(cfg.offset_step_px, cfg.min_step_mm * ppm)
+    n_u = int(np.ceil(2 * cfg.lateral_extent * half.max() * ppm / offset_step_px / stride)) * stride + 1
     u = np.linspace(-cfg.lateral_extent, cfg.lateral_extent, n_u)
     xy = pts[None, :, :] + (u[:, None, None] * half[None, :, None]) * nrm[None, :, :]
     img = pose.to_image(xy.reshape(-1, 2)).reshape(n_u, len(p), 2)
