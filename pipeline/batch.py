@@ -735,7 +735,8 @@ def process_video(
 
     Writes ``<trial>.angles.csv``, ``<trial>.registration.json`` (SPEC §6 keys of the first
     registration, plus ``registrations``: every registration used, with the frame it started
-    at, and ``lost``: the spans in which the registration was lost) and ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
+    at, and ``lost``: the spans in which the registration was lost) and
+    ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
     ``out_dir``, each atomically. If interrupted while writing, the files written so far in this
     call are removed again.
 

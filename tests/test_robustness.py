@@ -24,7 +24,8 @@ camera bumped mid-way (re-registration)    ``test_camera_bumped_mid_way_is_re_re
                                            plumbing: test_batch.py ``test_camera_bump_triggers_re_registration``;
                                            re-registration failing (view blocked):
                                            ``test_view_blocked_mid_way_is_not_measured_then_resumes``; plumbing:
-                                           test_batch.py ``test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits``,
+                                           test_batch.py
+                                           ``test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits``,
                                            ``test_registration_lost_to_the_end_marks_the_rest_not_ok``,
                                            ``test_view_blocked_for_a_while_resumes_with_the_old_registration``
 a frame where the array is hidden          ``test_frame_with_the_array_hidden``
