@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "nonneg_int", "positive_float", "fraction", "int_list", "speed_list"]
+__all__ = ["positive_int", "nonneg_int", "positive_float", "nonneg_float", "fraction", "int_list", "speed_list"]
 
 
 def _int(text: str) -> int:
@@ -47,6 +47,14 @@ def positive_float(text: str) -> float:
     value = _float(text)
     if not 0 < value < float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number, not {text}")
+    return value
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0 (an amount that may be none), in the option's own unit."""
+    value = _float(text)
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, not {text}")
     return value
 
 

@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
-from pipeline.argtypes import int_list, nonneg_int, positive_float, positive_int, speed_list
+from pipeline.argtypes import int_list, nonneg_float, nonneg_int, positive_float, positive_int, speed_list
 from vision.errors import InputError, is_input_error
 
 __all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
@@ -223,6 +223,9 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
                    help="size (px) of the rendered video, e.g. 1280x720 (default 640x480): the same phantom "
                         "in a larger frame")
     p.add_argument("--seed", type=int, default=0, help="render and dataset seed (default 0)")
+    p.add_argument("--noise", type=nonneg_float, default=None, metavar="SIGMA",
+                   help="sensor noise (grey levels) of the rendered video (default 2, a camera's; 0: noise-free, "
+                        "which decodes unusually fast)")
     p.add_argument("--video", metavar="VIDEO", help="time this video instead of rendering one")
     p.add_argument("--fps", type=positive_float, metavar="F", help="frame rate (frames/s) for a folder of frames")
     p.add_argument("--quick", action="store_true",
@@ -258,7 +261,8 @@ def _run_bench(args: argparse.Namespace) -> int:
     if workers is not None and (not workers or min(workers) < 1):
         raise UsageError("tympani bench: --workers counts must be >= 1")
     config = BenchConfig.quick() if args.quick else BenchConfig()
-    changes = {"n_frames": args.frames, "size": args.size, "trials": args.trials, "workers": workers,
+    changes = {"n_frames": args.frames, "size": args.size, "noise_sigma": args.noise, "trials": args.trials,
+               "workers": workers,
                "batch_videos": args.batch_videos, "repeats": args.repeats}
     try:
         config = replace(config, seed=args.seed, long_factor=args.long_factor,

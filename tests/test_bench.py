@@ -43,6 +43,8 @@ def test_bench_config_checks_its_values():
         BenchConfig(workers=())
     with pytest.raises(ValueError):
         BenchConfig(trials=1)  # the diagnosis needs repeats
+    with pytest.raises(ValueError):
+        BenchConfig(noise_sigma=-1.0)
     assert BenchConfig.quick(trials=3).trials == 3
 
 
@@ -80,7 +82,9 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     assert [w["workers"] for w in result["workers"]] == [1, 2]
     for w in result["workers"]:
         assert w["ok"] == w["videos"] == 2 and w["frames"] == 24 and _finite_positive(w["frames_per_s"])
+    assert result["file_bytes"] == os.path.getsize(tiny_video)
     text = format_bench(result)
+    assert f"{result['file_bytes'] / 12 / 1024:.1f} KiB/frame" in text
     for fragment in ("decode only", "full extract", "% of decode speed", "per round", "registration", "edges", "angles",
                      "extraction short", "extraction long", "diagnosis", "batch workers", "bench total"):
         assert fragment in text, fragment
@@ -108,6 +112,21 @@ def test_render_bench_video_size_keeps_the_phantom(tmp_path):
     assert poses[1].px_per_mm == pytest.approx(poses[0].px_per_mm, rel=0.01)
 
 
+def test_render_bench_video_noise_is_a_cameras(tmp_path):
+    """The default bench video carries sensor noise (2 grey levels); 0 renders it noise-free,
+    otherwise the same frames. The noisy one is a bigger file: more to decode."""
+    import numpy as np
+
+    from vision.frames import to_gray
+
+    clean = render_bench_video(tmp_path / "clean.mp4", n_frames=4, seed=0, noise_sigma=0.0)
+    noisy = render_bench_video(tmp_path / "noisy.mp4", n_frames=4, seed=0)
+    a, b = ([to_gray(f.image).astype(float) for f in open_frames(v)] for v in (clean, noisy))
+    diff = np.concatenate([(y - x).ravel() for x, y in zip(a, b)])
+    assert abs(diff.mean()) < 0.5 and 1.0 < diff.std() < 3.0  # the codec smooths some of the 2 levels away
+    assert os.path.getsize(noisy) > 1.2 * os.path.getsize(clean)
+
+
 def test_bench_command_rejects_bad_sizes(capsys):
     assert main(["bench", "--size", "1280"]) == 2
     assert "--size: '1280' is not WIDTHxHEIGHT" in capsys.readouterr().err
@@ -117,3 +136,5 @@ def test_bench_command_rejects_bad_sizes(capsys):
     assert "unknown --skip" in capsys.readouterr().err
     assert main(["bench", "--trials", "1"]) == 2
     assert "at least 2 trials" in capsys.readouterr().err
+    assert main(["bench", "--noise", "-2"]) == 2
+    assert "--noise: must be a number >= 0, not -2" in capsys.readouterr().err
