@@ -649,8 +649,9 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     regs = log.registrations
     at = {int(r["frame"]): i for i, r in enumerate(rows)}
     # (registration in force before, frame where the move was seen, new registration or None, entry)
-    spans = [(j - 1, int(regs[j]["frame"]), j, regs[j]) for j in range(1, min(len(regs), len(log.in_force)))
-             if regs[j].get("trigger") == "check"]
+    spans: list[tuple[int, int, int | None, dict]] = [
+        (j - 1, int(regs[j]["frame"]), j, regs[j]) for j in range(1, min(len(regs), len(log.in_force)))
+        if regs[j].get("trigger") == "check"]
     spans += [(int(lost["in_force"]), int(lost["frame"]), None, lost) for lost in log.lost
               if lost.get("ended") != "registered"]
     for i_old, seen_at, i_new, entry in sorted(spans, key=lambda sp: sp[1]):
@@ -662,7 +663,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
         if good + 1 >= seen_at:
             continue
         new = None if i_new is None else log.in_force[i_new]
-        new_threshold = None if new is None else cfg.recheck_threshold_px(new[0])
+        new_threshold = math.nan if new is None else cfg.recheck_threshold_px(new[0])
         epoch = int(regs[i_old]["epoch"] if i_new is None else regs[i_new]["epoch"])
         first, fitted = None, 0
         frames = iter(source)
