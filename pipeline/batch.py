@@ -63,6 +63,7 @@ __all__ = [
     "VideoItem",
     "measure_frames",
     "extract_video",
+    "flag_glitches",
     "process_video",
     "extract_batch",
     "is_dask_client",
@@ -127,6 +128,10 @@ class ExtractConfig:
         Threads of the video decoder (``vision.frames.VideoFrames``); None leaves FFmpeg's
         default, one per core. :func:`extract_batch` runs its workers' decoders on one thread
         when this is None, as every core then has a worker of its own.
+    glitch_rad : float
+        A measured frame whose theta_tip or theta_bot lies more than this (rad) from the median
+        of it and its two measured neighbours on each side is marked not ok as a glitch
+        (:func:`flag_glitches`); 0 keeps every frame.
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -140,6 +145,7 @@ class ExtractConfig:
     measure_batch: int = 64
     measure_batch_mb: float = 32.0
     decoder_threads: int | None = None
+    glitch_rad: float = 0.25
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
@@ -149,6 +155,8 @@ class ExtractConfig:
         if int(self.measure_batch) != self.measure_batch or self.measure_batch < 1:
             raise ValueError(f"measure_batch must be an integer >= 1, not {self.measure_batch!r}")
         check_decoder_threads(self.decoder_threads)
+        if not self.glitch_rad >= 0:
+            raise ValueError(f"glitch_rad must be >= 0 rad, not {self.glitch_rad!r}")
         if not self.measure_batch_mb > 0:
             raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
@@ -595,6 +603,10 @@ def extract_video(
     t0 = time.perf_counter()
     moves = remeasure_after_moves(source, rows, log, cfg, name)
     log.add_time("remeasure", time.perf_counter() - t0)
+    glitches = flag_glitches(rows, cfg.glitch_rad)
+    if glitches:
+        moves.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
+                     "median of its measured neighbours)")
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
     table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
@@ -608,6 +620,58 @@ def extract_video(
         source=source.info(),
     )
     return table, log.first_registration
+
+
+def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int:
+    """Mark isolated outliers in time as not ok, in place.
+
+    The angles move smoothly from frame to frame, or step (theta_bot when a contact run forms or
+    breaks). A frame measured far from its neighbours on both sides is a measurement glitch: a
+    few edges misread can move theta_bot by radians through the contact run's definition. Over
+    a video's measured frames in order, a frame is marked when its ``theta_tip`` or
+    ``theta_bot`` lies from the running median of ``2 * half_window + 1`` measured frames
+    centred on it (fewer at the ends) by more than ``max_rad``, and by more than ``2 *
+    half_window`` typical frame-to-frame steps (the median absolute step over the 11 frames
+    around it): on a steep ramp (a fast insertion) a spike pulls its neighbours' medians by up
+    to ``half_window`` steps. A running median leaves ramps and steps as they are and removes
+    spikes up to ``half_window`` frames long. Marked rows get ``ok`` False, NaN angles and the
+    reason.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, ``theta_tip``, ``theta_bot`` rad,
+        ``theta_con``, ``reason``); changed in place.
+    max_rad : float
+        Least distance (rad) from the running median that marks a frame; 0 or less does
+        nothing.
+    half_window : int
+        Measured frames on each side in the median.
+
+    Returns
+    -------
+    int
+        Frames marked.
+    """
+    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+    if max_rad <= 0 or len(ok) < 2 * half_window + 1:
+        return 0
+    marked = np.zeros(len(ok), dtype=bool)
+    why = [""] * len(ok)
+    for key in ("theta_tip", "theta_bot"):
+        x = np.array([float(rows[i][key]) for i in ok])
+        k = np.arange(len(x))
+        med = np.array([np.median(x[max(0, j - half_window): j + half_window + 1]) for j in k])
+        steps = np.abs(np.diff(x))
+        typical = np.array([np.median(steps[max(0, j - 5): j + 5]) for j in k])
+        off = np.abs(x - med)
+        far = off > np.maximum(max_rad, 2 * half_window * typical)
+        for j in np.flatnonzero(far & ~marked):
+            why[j] = f"glitch: {key} {x[j]:.3f} rad, {off[j]:.2f} rad from its neighbours' median"
+        marked |= far
+    for j in np.flatnonzero(marked):
+        rows[ok[j]].update(ok=False, reason=why[j], theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
+    return int(marked.sum())
 
 
 def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig,

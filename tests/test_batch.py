@@ -13,6 +13,7 @@ import math
 import multiprocessing as mp
 import os
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -25,6 +26,7 @@ from pipeline.batch import (
     VideoItem,
     extract_batch,
     extract_video,
+    flag_glitches,
     output_paths,
     process_video,
     read_manifest,
@@ -234,6 +236,50 @@ def test_view_blocked_for_a_while_resumes_with_the_old_registration(tmp_path, mo
     assert len(table.attrs["registrations"]) == 1
     assert any("frames 9-10 not measured (registration lost); the old registration fits again from frame 11" in w
                for w in table.attrs["warnings"])
+
+
+def _angle_rows(tip, bot) -> list[dict]:
+    return [dict(frame=i, ok=True, theta_tip=t, theta_bot=b, theta_con=t - b, reason="")
+            for i, (t, b) in enumerate(zip(tip, bot))]
+
+
+def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
+    """A ramp (the tip advancing 0.15 rad a frame, faster than 7.5 mm/s at 30 frames/s), a step
+    in theta_bot (a contact run forming), a one-frame spike of 3 rad and a two-frame spike: only
+    the spikes' frames are marked."""
+    n = 20
+    tip = [1.0 + 0.15 * i for i in range(n)]
+    bot = [1.0] * 10 + [0.4] * 10  # the step at frame 10
+    bot[4] = 4.0  # a one-frame glitch
+    tip[14] = tip[15] = 0.2  # a two-frame glitch
+    rows = _angle_rows(tip, bot)
+    rows[7]["ok"] = False  # an unmeasured frame is skipped, not counted as a neighbour
+    assert flag_glitches(rows, 0.25) == 3
+    flagged = [r["frame"] for r in rows if not r["ok"]]  # 7 was not ok before
+    assert flagged == [4, 7, 14, 15]
+    assert rows[4]["reason"].startswith("glitch: theta_bot 4.000 rad, 3.00 rad from its neighbours' median")
+    assert math.isnan(rows[4]["theta_tip"]) and math.isnan(rows[14]["theta_con"])
+    assert all(r["ok"] for r in rows if r["frame"] not in (4, 7, 14, 15))
+    # off, and too few frames to judge
+    assert flag_glitches(_angle_rows(tip, bot), 0.0) == 0
+    assert flag_glitches(_angle_rows([1.0, 5.0, 1.0, 1.0], [1.0] * 4), 0.25) == 0
+
+
+def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
+    """A frame measured 1.7 rad off its neighbours (here a fake measurement of an odd frame) is
+    marked not ok in the angles table, with a warning; glitch_rad=0 keeps it."""
+    fakes.install(monkeypatch)
+    path = tmp_path / "g.mp4"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (fakes.W, fakes.H))
+    for i in range(12):
+        writer.write(fakes.frame_image(20 if i == 5 else i))  # frame 5 as bright as frame 20 (theta_tip 2.3 vs 0.8)
+    writer.release()
+    table, _ = extract_video(path, fakes.fake_config())
+    assert table.loc[table["frame"] != 5, "ok"].all() and not table.loc[table["frame"] == 5, "ok"].item()
+    assert table.loc[table["frame"] == 5, "reason"].item().startswith("glitch: theta_tip")
+    assert any("1 frame(s) marked not ok as glitches" in w for w in table.attrs["warnings"])
+    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0))
+    assert table["ok"].all()
 
 
 def test_registration_failure_is_input_error(tmp_path, fake_vision):
