@@ -69,12 +69,16 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
                        help="check the registration every N frames, re-register if the camera moved (0: never; default 150)")
     group.add_argument("--register-frames", type=positive_int, default=5, metavar="N",
                        help="frames used for registration (default 5)")
+    group.add_argument("--glitch-rad", type=nonneg_float, default=0.25, metavar="RAD",
+                       help="mark a frame not ok when an angle lies this far (rad) from the running median of its "
+                            "measured neighbours (0: never; default 0.25)")
 
 
 def _extract_config(args: argparse.Namespace):
     from pipeline.batch import ExtractConfig
 
-    return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames)
+    return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
+                         glitch_rad=args.glitch_rad)
 
 
 # --------------------------------------------------------------------------- extract
@@ -403,7 +407,8 @@ def _run_run(args: argparse.Namespace) -> int:
 
     command = ["tympani", "run", "--manifest", args.manifest, "--out", args.out, "--workers", str(args.workers),
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
-               "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames)]
+               "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
+               "--glitch-rad", str(args.glitch_rad)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--overwrite"] if args.overwrite else []
     command += ["--scheduler", args.scheduler] if args.scheduler else []

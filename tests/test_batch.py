@@ -280,6 +280,15 @@ def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
     assert any("1 frame(s) marked not ok as glitches" in w for w in table.attrs["warnings"])
     table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0))
     assert table["ok"].all()
+    # the command line: --glitch-rad reaches the extraction; a negative value is a usage error
+    from pipeline.cli import main
+
+    monkeypatch.setattr("pipeline.cli._extract_config", lambda args: fakes.fake_config(glitch_rad=args.glitch_rad))
+    for rad, ok in (("0.25", False), ("0", True)):
+        assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad]) == 0
+        angles = pd.read_csv(tmp_path / rad / "g.angles.csv")
+        assert bool(angles.loc[angles["frame"] == 5, "ok"].item()) is ok
+    assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--glitch-rad", "-1"]) == 2
 
 
 def test_registration_failure_is_input_error(tmp_path, fake_vision):
