@@ -5,8 +5,8 @@
 1. **decode vs extraction** on one video (a rendered 640×480 mp4 with a camera's sensor noise
    by default, see :func:`render_bench_video` and :attr:`BenchConfig.noise_sigma`): frames/s of
    decoding alone (read + grey conversion) and of the full extraction
-   (:func:`pipeline.batch.extract_video`: registration, checks, measurement), and their ratio. Both are timed ``repeats`` times (3), alternately, and the fastest of each
-   is compared (each round's own ratio is listed too, to show the spread the machine's load
+   (:func:`pipeline.batch.extract_video`: registration, checks, measurement), and their ratio.
+   Both are timed ``repeats`` times (3), alternately, and the fastest of each is compared (each round's own ratio is listed too, to show the spread the machine's load
    makes); the first extraction in a process also pays one-off start-up costs (imports,
    first calls), so it is reported beside as the cold figure. The process is pinned to one CPU
    meanwhile (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's,
