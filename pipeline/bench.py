@@ -6,12 +6,13 @@
    by default, see :func:`render_bench_video` and :attr:`BenchConfig.noise_sigma`): frames/s of
    decoding alone (read + grey conversion) and of the full extraction
    (:func:`pipeline.batch.extract_video`: registration, checks, measurement), and their ratio.
-   Both are timed ``repeats`` times (3), alternately, and the fastest of each is compared (each round's own ratio is listed too, to show the spread the machine's load
-   makes); the first extraction in a process also pays one-off start-up costs (imports,
-   first calls), so it is reported beside as the cold figure. The process is pinned to one CPU
-   meanwhile (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's,
-   as many as there are cores) that OpenCV's thread setting does not reach, and both decode
-   on one thread (``decoder_threads=1``), the decoder's faster setting on one core;
+   Both are timed ``repeats`` times (3), alternately, and the fastest of each is compared (each
+   round's own ratio is listed too, to show the spread the machine's load makes); the first
+   extraction in a process also pays one-off start-up costs (imports, first calls), so it is
+   reported beside as the cold figure. The process is pinned to one CPU meanwhile
+   (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's, as many as
+   there are cores) that OpenCV's thread setting does not reach, and both decode on one thread
+   (``decoder_threads=1``), the decoder's faster setting on one core;
 2. **per-stage time** (ms/frame) of the warm extraction: decode (+ grey), registration (the
    one-off registration, its measurement plan and the periodic checks) and the measurement's
    stages (survey, edges, centre line, angles);
