@@ -238,7 +238,9 @@ class MeasureConfig:
         level (the second is the median over stations whose brightest value is fluid).
     fluid_reach_mm : float
         Distance (mm) along the channel over which a block's fluid level is compared with its
-        neighbours' (to find blocks where the array fills the channel).
+        neighbours' (to find blocks where the array fills the channel). The light must not fall
+        by more than ``1 - fluid_floor`` over it, or plain fluid is taken for the array: at
+        6 mm (before session 6) the tip ran on by 1-2 rad under strong uneven light.
     fluid_floor : float
         A block darker than this fraction of its brightest neighbour within ``fluid_reach_mm``
         is taken to be filled by the array, and its fluid level interpolated.
@@ -302,7 +304,7 @@ class MeasureConfig:
     min_interior: float = 0.25
     fluid_window_mm: float = 1.5
     fluid_percentile: float = 25.0
-    fluid_reach_mm: float = 6.0
+    fluid_reach_mm: float = 3.0
     fluid_floor: float = 0.85
     probe_mm: float = 1.5
     beside_mm: float = 0.3
