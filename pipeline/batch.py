@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
+from numpy.lib.stride_tricks import sliding_window_view
 
 from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from vision.errors import InputError, is_input_error, one_line
@@ -586,8 +587,9 @@ def extract_video(
         columns, then ``reg_epoch``. Failed frames have ``ok`` False, NaN angles and a
         ``reason``. ``table.attrs`` holds ``registrations``, ``lost`` (the spans in which the
         registration was lost, see :class:`ExtractLog`), ``checks``, ``warnings``
-        (decoder, measurement, and the camera moves whose frames :func:`remeasure_after_moves`
-        measured again), ``timing_s`` and ``source`` (see :class:`ExtractLog`).
+        (decoder, measurement, the camera moves whose frames :func:`remeasure_after_moves`
+        went back over, and the glitches :func:`flag_glitches` marked), ``timing_s`` and
+        ``source`` (see :class:`ExtractLog`).
     registration : Registration
         The first registration (the one frame 0 was measured with).
 
@@ -601,11 +603,11 @@ def extract_video(
     log = ExtractLog()
     rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress, keep_colour=False)]
     t0 = time.perf_counter()
-    moves = remeasure_after_moves(source, rows, log, cfg, name)
+    notes = remeasure_after_moves(source, rows, log, cfg, name)
     log.add_time("remeasure", time.perf_counter() - t0)
     glitches = flag_glitches(rows, cfg.glitch_rad)
     if glitches:
-        moves.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
+        notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
                      "median of its measured neighbours)")
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
@@ -615,11 +617,24 @@ def extract_video(
         registrations=log.registrations,
         lost=[{k: v for k, v in span.items() if k not in ("in_force", "retry_at")} for span in log.lost],
         checks=log.checks,
-        warnings=[*source.warnings, *log.warnings, *moves],
+        warnings=[*source.warnings, *log.warnings, *notes],
         timing_s=log.timing_s,
         source=source.info(),
     )
     return table, log.first_registration
+
+
+def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.ndarray:
+    """``out[j] = median(x[max(0, j - before) : j - before + width])`` for ``j < n_out``: a
+    running median whose windows are clipped to ``x`` at its ends (values in ``x``'s unit).
+    The windows inside ``x`` are taken in one call; only the clipped ones at the ends loop."""
+    out = np.empty(n_out)
+    first, last = before, min(n_out - 1, len(x) - width + before)  # the j whose window lies inside x
+    if last >= first:
+        out[first : last + 1] = np.median(sliding_window_view(x, width)[: last - first + 1], axis=1)
+    for j in (*range(min(first, n_out)), *range(max(last + 1, first), n_out)):
+        out[j] = np.median(x[max(0, j - before) : j - before + width])
+    return out
 
 
 def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int:
@@ -660,10 +675,8 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     why = [""] * len(ok)
     for key in ("theta_tip", "theta_bot"):
         x = np.array([float(rows[i][key]) for i in ok])
-        k = np.arange(len(x))
-        med = np.array([np.median(x[max(0, j - half_window): j + half_window + 1]) for j in k])
-        steps = np.abs(np.diff(x))
-        typical = np.array([np.median(steps[max(0, j - 5): j + 5]) for j in k])
+        med = _window_medians(x, half_window, 2 * half_window + 1, len(x))
+        typical = _window_medians(np.abs(np.diff(x)), 5, 10, len(x))  # the 10 steps among the 11 frames around
         off = np.abs(x - med)
         far = off > np.maximum(max_rad, 2 * half_window * typical)
         for j in np.flatnonzero(far & ~marked):
@@ -758,14 +771,13 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
         entry["moved_at_frame"] = first if first is not None else seen_at
         if first is None:
             continue
-        span = f"camera moved at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1}"
+        span = f"at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1}"
         if new is None:
-            notes.append(f"view changed at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1} "
-                         "marked not ok (no registration fits them)")
+            notes.append(f"view changed {span} marked not ok (no registration fits them)")
         elif fitted == seen_at - first:
-            notes.append(f"{span} measured again with the new registration")
+            notes.append(f"camera moved {span} measured again with the new registration")
         else:
-            notes.append(f"{span}: {fitted} measured again with the new registration, "
+            notes.append(f"camera moved {span}: {fitted} measured again with the new registration, "
                          f"{seen_at - first - fitted} marked not ok (they fit neither registration)")
     return notes
 

@@ -25,6 +25,7 @@ from pipeline.batch import (
     ExtractConfig,
     VideoItem,
     extract_batch,
+    _window_medians,
     extract_video,
     flag_glitches,
     output_paths,
@@ -263,6 +264,16 @@ def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
     # off, and too few frames to judge
     assert flag_glitches(_angle_rows(tip, bot), 0.0) == 0
     assert flag_glitches(_angle_rows([1.0, 5.0, 1.0, 1.0], [1.0] * 4), 0.25) == 0
+
+
+def test_window_medians_equal_the_clipped_windows_one_by_one():
+    rng = np.random.default_rng(0)
+    for n in (1, 4, 5, 6, 10, 11, 40):
+        x = rng.normal(size=n)
+        for before, width in ((2, 5), (5, 10)):
+            for n_out in (n, n + 1):
+                one_by_one = [np.median(x[max(0, j - before): j - before + width]) for j in range(n_out)]
+                assert np.array_equal(_window_medians(x, before, width, n_out), one_by_one)
 
 
 def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
