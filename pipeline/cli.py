@@ -266,8 +266,7 @@ def _run_bench(args: argparse.Namespace) -> int:
         raise UsageError("tympani bench: --workers counts must be >= 1")
     config = BenchConfig.quick() if args.quick else BenchConfig()
     changes = {"n_frames": args.frames, "size": args.size, "noise_sigma": args.noise, "trials": args.trials,
-               "workers": workers,
-               "batch_videos": args.batch_videos, "repeats": args.repeats}
+               "workers": workers, "batch_videos": args.batch_videos, "repeats": args.repeats}
     try:
         config = replace(config, seed=args.seed, long_factor=args.long_factor,
                          sections=tuple(s for s in SECTIONS if s not in skip),
