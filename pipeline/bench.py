@@ -6,8 +6,10 @@
    by default, see :func:`render_bench_video` and :attr:`BenchConfig.noise_sigma`): frames/s of
    decoding alone (read + grey conversion) and of the full extraction
    (:func:`pipeline.batch.extract_video`: registration, checks, measurement), and their ratio.
-   Both are timed ``repeats`` times (3), alternately, and the fastest of each is compared (each
-   round's own ratio is listed too, to show the spread the machine's load makes); the first
+   Both are timed ``repeats`` times (5), alternately, and the fastest of each is compared. Each
+   round's own ratio (its extraction against the decoding just before it) is listed too, with
+   the median of the warm rounds: adjacent timings share the machine's load, so that median
+   moves less between runs than the fastest-against-fastest figure does. The first
    extraction in a process also pays one-off start-up costs (imports, first calls), so it is
    reported beside as the cold figure. The process is pinned to one CPU meanwhile
    (:func:`_one_cpu`), since the video decoder runs threads of its own (FFmpeg's, as many as
@@ -38,6 +40,7 @@ import os
 import pickle
 import resource
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -94,7 +97,7 @@ class BenchConfig:
         Which of :data:`SECTIONS` to run.
     repeats : int
         Times decoding and extraction are each timed, alternately (the fastest of each is
-        compared).
+        compared; at least 3 give a median of the warm rounds).
     """
 
     n_frames: int = 200
@@ -107,7 +110,7 @@ class BenchConfig:
     workers: tuple[int, ...] = (1, 2, 4)
     batch_videos: int = 8
     sections: tuple[str, ...] = SECTIONS
-    repeats: int = 3
+    repeats: int = 5
 
     def __post_init__(self) -> None:
         if self.n_frames < 1 or self.long_factor < 1 or self.batch_videos < 1 or self.repeats < 1:
@@ -287,7 +290,7 @@ STAGE_GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 
-def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
+def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 5) -> dict:
     """Section 1-2: decode-only against full extraction, cold and warm, and per-stage times.
 
     Decoding and extraction are timed ``repeats`` times each, alternately, and the fastest
@@ -333,6 +336,8 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 3) -> dict:
         "ratio": decode_fps / extract_fps if extract_fps > 0 else float("inf"),
         "extract_vs_decode": extract_fps / decode_fps if decode_fps > 0 else 0.0,
         "extract_vs_decode_rounds": rounds,
+        # the warm rounds' median (the first round's extraction is cold); None below 2 of them
+        "extract_vs_decode_median_warm": statistics.median(rounds[1:]) if len(rounds) >= 3 else None,
         "extract_fps_steady": (steady := len(table_b) / (warm_s - once_s) if warm_s > once_s else float("inf")),
         "ratio_steady": decode_fps / steady if steady > 0 else float("inf"),
         "stage_s": timing,
@@ -546,7 +551,9 @@ def format_bench(result: dict) -> str:
         f"ratio          {result['ratio']:8.2f} x (decode / extract): extraction at "
         f"{100.0 * result['extract_vs_decode']:.0f} % of decode speed",
         *([f"per round      {', '.join(f'{100.0 * r:.0f}' for r in result['extract_vs_decode_rounds'])} % of decode "
-           f"speed (each round: decode, then extract; the first extraction is cold)"]
+           f"speed (each round: decode, then extract; the first extraction is cold)"
+           + (f"; median of the warm rounds {100.0 * result['extract_vs_decode_median_warm']:.0f} %"
+              if result.get("extract_vs_decode_median_warm") is not None else "")]
           if result.get("extract_vs_decode_rounds") else []),
         f"steady state   {result['extract_fps_steady']:8.1f} frames/s (extraction without the one-off registration)",
         f"ratio steady   {result['ratio_steady']:8.2f} x (decode / steady state): extraction at "

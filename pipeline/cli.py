@@ -246,7 +246,7 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
                    help="sections to leave out: memory, diagnosis, workers")
     p.add_argument("--repeats", type=positive_int, default=None, metavar="N",
                    help="times decoding and extraction are each timed, alternately; the fastest of each "
-                        "is compared (default 3; 2 with --quick)")
+                        "is compared, and each round's own ratio listed with the warm rounds' median (default 5; 2 with --quick)")
 
 
 def _run_bench(args: argparse.Namespace) -> int:

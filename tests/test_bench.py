@@ -49,7 +49,7 @@ def test_bench_config_checks_its_values():
 
 
 def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
-    config = BenchConfig.quick(long_factor=3, trials=2, workers=(1, 2), batch_videos=2)
+    config = BenchConfig.quick(long_factor=3, trials=2, workers=(1, 2), batch_videos=2, repeats=4)
     lines: list[str] = []
     cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     result = run_bench(video=tiny_video, config=config, log=lines.append)
@@ -62,6 +62,8 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     assert result["ratio"] == pytest.approx(1.0 / result["extract_vs_decode"])
     rounds = result["extract_vs_decode_rounds"]  # one per repeat, each extraction against its own decode
     assert len(rounds) == config.repeats and all(_finite_positive(r) for r in rounds)
+    # the median of the 3 warm rounds (the first round's extraction is cold)
+    assert result["extract_vs_decode_median_warm"] == pytest.approx(sorted(rounds[1:])[1])
     assert result["n_ok"] >= 10
     if cpus is not None:  # timed on one CPU, and the process let go afterwards
         assert result["pinned_cpu"] in cpus and os.sched_getaffinity(0) == cpus
@@ -85,6 +87,7 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
     assert result["file_bytes"] == os.path.getsize(tiny_video)
     text = format_bench(result)
     assert f"{result['file_bytes'] / 12 / 1024:.1f} KiB/frame" in text
+    assert f"median of the warm rounds {100.0 * result['extract_vs_decode_median_warm']:.0f} %" in text
     for fragment in ("decode only", "full extract", "% of decode speed", "per round", "registration", "edges", "angles",
                      "extraction short", "extraction long", "diagnosis", "batch workers", "bench total"):
         assert fragment in text, fragment
