@@ -2122,18 +2122,18 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     rg = _Ragged.of([e.n for e in edges])
     lo = np.array([e.lo for e in edges], dtype=np.intp)
     station = lo[rg.row] + rg.local
-    cat = [np.concatenate([getattr(e, name) for e in edges]) for name in ("v_in", "v_out", "ok_in", "ok_out")]
+    v_in, v_out, ok_in, ok_out = (np.concatenate([getattr(e, name) for e in edges])
+                                  for name in ("v_in", "v_out", "ok_in", "ok_out"))
     # pass 1: distance from the tip along the backbone, array parallel to the channel
     s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
-    v_c, measured, _ = _centre_offsets(*cat, s, np.ones(len(s)), array, cfg.cap_min, tol)
+    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol)
     live = np.flatnonzero(rg.count(measured) >= 3)
     if not len(live):
         return out
     if len(live) < len(edges):  # the others have no centre line
         sub, rg = rg.subset(live)
         lo, station = lo[live], station[sub]
-        cat, v_c, measured = [a[sub] for a in cat], v_c[sub], measured[sub]
-    v_in, v_out, ok_in, ok_out = cat
+        v_in, v_out, ok_in, ok_out, v_c, measured = (a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured))
     n, row, local = rg.n, rg.row, rg.local
     # outliers: off their neighbours' running median by more than 3 robust SDs (and tol)
     at = np.flatnonzero(measured)
@@ -2457,13 +2457,15 @@ def measure_frame(
         img = _to_gray(gray)
     except (ValueError, TypeError, cv2.error) as exc:
         return _fail(f"bad frame: {exc}")
-    plan = registration
-    if isinstance(plan, MeasurePlan) and plan.image_shape != img.shape[:2]:
-        plan = prepare_measurement(plan.pose, img.shape, plan.phantom, plan.array, plan.cfg)
-        t0 = time.perf_counter()
-    elif not isinstance(plan, MeasurePlan):
+    if not isinstance(registration, MeasurePlan):
         plan = prepare_measurement(registration, img.shape, phantom, array, cfg)
         t0 = time.perf_counter()
+    elif registration.image_shape != img.shape[:2]:
+        plan = prepare_measurement(registration.pose, img.shape, registration.phantom, registration.array,
+                                   registration.cfg)
+        t0 = time.perf_counter()
+    else:
+        plan = registration
     try:
         with np.errstate(divide="ignore", invalid="ignore"):
             result = _measure(img, plan)
@@ -2522,22 +2524,22 @@ def measure_frames_batch(
             imgs.append(img)
             where.append(i)
     if imgs:
+        surveys: list[_Survey | FrameMeasurement | None]
         try:
             with np.errstate(divide="ignore", invalid="ignore"):
-                surveys = _survey_batch(imgs, plan)
+                surveys = list(_survey_batch(imgs, plan))
         except (ValueError, IndexError, FloatingPointError, cv2.error):
-            surveys = None
+            surveys = [None] * len(imgs)
         t1 = time.perf_counter()
         share_s = (t1 - t0) / len(imgs)
-        if surveys is None:
-            surveys = [None] * len(imgs)
-        todo = [k for k, sv in enumerate(surveys) if isinstance(sv, _Survey)]
+        found = {k: sv for k, sv in enumerate(surveys) if isinstance(sv, _Survey)}  # the frames stage 1 passed
+        todo = list(found)
         staged: dict[int, tuple[_Edges, _CentreLine | None]] = {}
         edges_s = centre_s = 0.0
         if todo:
             try:  # stages 2-3 together; on any error, frame by frame below
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    edges = _edges_batch([imgs[k] for k in todo], plan, [surveys[k] for k in todo])
+                    edges = _edges_batch([imgs[k] for k in todo], plan, list(found.values()))
                     t2 = time.perf_counter()
                     lines = _centre_line_batch(plan, edges)
                     t3 = time.perf_counter()
@@ -2546,15 +2548,15 @@ def measure_frames_batch(
             except (ValueError, IndexError, FloatingPointError, cv2.error):
                 staged = {}
         done: dict[int, FrameMeasurement] = {}
-        measured = [k for k, (_, c) in staged.items() if c is not None]
+        lines_found = {k: (e, c) for k, (e, c) in staged.items() if c is not None}
+        measured = list(lines_found)
         if measured:
             t4 = time.perf_counter()
             try:  # stage 4 together; on any error, frame by frame below
                 with np.errstate(divide="ignore", invalid="ignore"):
                     finals = _results_batch(plan, [
-                        (*staged[k], dict(contrast=surveys[k].contrast,
-                                          edge_fraction=float(staged[k][1].measured.sum()) / len(staged[k][1].measured)))
-                        for k in measured])
+                        (e, c, dict(contrast=found[k].contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
+                        for k, (e, c) in lines_found.items()])
                 angles_s = (time.perf_counter() - t4) / len(measured)
                 for k, result in zip(measured, finals):
                     result.timings.update(survey=share_s, edges=edges_s, centre_line=centre_s, angles=angles_s)
@@ -2573,7 +2575,7 @@ def measure_frames_batch(
             try:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     if k in staged:
-                        result = _staged_result(plan, sv, *staged[k], dict(survey=share_s, edges=edges_s,
+                        result = _staged_result(plan, found[k], *staged[k], dict(survey=share_s, edges=edges_s,
                                                                            centre_line=centre_s))
                         spent_s = share_s + edges_s + centre_s
                     else:
