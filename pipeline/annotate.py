@@ -342,6 +342,7 @@ def annotate_video(
         if writer is not None:
             writer.release()
             writer = None
+            assert tmp_video is not None  # set with the writer
             os.replace(tmp_video, final_video)
             tmp_video = None
     finally:

@@ -792,7 +792,7 @@ def _count_ok(csv_path: Path) -> tuple[int, int] | None:
 
 
 def _summary(trial: str, path: Path, status: str, **values: Any) -> dict:
-    row = {c: None for c in SUMMARY_COLUMNS}
+    row: dict[str, Any] = {c: None for c in SUMMARY_COLUMNS}
     row.update(trial=trial, path=str(path), status=status, error="", error_kind="", warnings="")
     row.update(values)
     return row
@@ -1125,6 +1125,7 @@ def extract_batch(
                     bar.update(1)
             except KeyboardInterrupt:
                 if own:  # skip queued videos; running ones stop (Ctrl-C reaches them) or finish whole
+                    assert cancel is not None  # made with the pool of our own
                     cancel.set()
                     pool.shutdown(wait=True, cancel_futures=True)
                     own = False
@@ -1206,7 +1207,8 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
         raise InputError(f"{mpath}:{lines[0][0]}", "needs a 'video' or an 'angles' column")
     if len(rows) == 1:
         raise InputError(mpath, "manifest has no trials")
-    records, seen = [], {}
+    records: list[dict[str, Any]] = []
+    seen: dict[str, int] = {}
     for (lineno, _), values in zip(lines[1:], rows[1:]):
         where = f"{mpath}:{lineno}"
         if len(values) != len(header):

@@ -266,7 +266,7 @@ def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None)
     for frame in source:
         to_gray(frame.image)
         n += 1
-    return n, time.perf_counter() - t0, tuple(source.shape[:2])
+    return n, time.perf_counter() - t0, source.shape[:2]
 
 
 def _extract_s(path: Path, cfg: Any, fps: float | None) -> tuple[Any, float]:
@@ -492,7 +492,8 @@ def run_bench(
     from pipeline.batch import ExtractConfig
 
     config = config if config is not None else BenchConfig()
-    config = dataclasses.replace(config, **{k: v for k, v in (("n_frames", n_frames), ("seed", seed)) if v is not None})
+    overrides: dict[str, Any] = {k: v for k, v in (("n_frames", n_frames), ("seed", seed)) if v is not None}
+    config = dataclasses.replace(config, **overrides)
     cfg = cfg if cfg is not None else ExtractConfig()
     say = log if log is not None else (lambda _line: None)
     t_start = time.perf_counter()

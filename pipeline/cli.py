@@ -532,7 +532,8 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name, cmd in COMMANDS.items():
-        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help, parents=[common])
+        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help,
+                           parents=[common])  # type: ignore[list-item]  # typeshed wants parents of the subparser class
         cmd.configure(p)
         p.set_defaults(_run=cmd.run)
     return parser

@@ -805,7 +805,8 @@ class Candidate:
     @property
     def nonlinear_names(self) -> tuple[str, ...]:
         """Names of the non-linear parameters, in order."""
-        return self.friction + (self.kernel.nonlinear if self.effect is not None else ())
+        kern = self.kernel
+        return self.friction + (kern.nonlinear if kern is not None else ())
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the non-linear parameters."""
@@ -817,6 +818,7 @@ class Candidate:
             hi.append(b)
         if self.effect is not None:
             kern = self.kernel
+            assert kern is not None  # the kernel is None only without an effect
             for nm in kern.nonlinear:
                 lo.append(kern.bounds[nm][0])
                 hi.append(kern.bounds[nm][1])
@@ -1017,6 +1019,7 @@ class CandidateFit:
         if cand.effect is None:
             return {}
         kern = cand.kernel
+        assert kern is not None  # the kernel is None only without an effect
         values = dict(zip(kern.nonlinear, map(float, self.x[len(cand.friction):])))
         lin = self.coef[4:]
         n_lin = len(kern.linear)
@@ -1047,7 +1050,9 @@ def _start_points(ds: Prepared, cand: Candidate, rows: np.ndarray | None, config
             out.append(np.array([rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.5),
                                  rng.uniform(math.log(0.1), math.log(10.0)), rng.uniform(0.0, 0.02)]))
         return [np.clip(x, lo, hi) for x in out]
-    grid = cand.kernel.grid or (tuple(0.5 * (a + b) for a, b in (cand.kernel.bounds[nm] for nm in cand.kernel.nonlinear)),)
+    kern = cand.kernel
+    assert kern is not None  # no friction constants and fit_candidate has bounds: an effect
+    grid = kern.grid or (tuple(0.5 * (a + b) for a, b in (kern.bounds[nm] for nm in kern.nonlinear)),)
     costs = [float(np.sum(_residual(np.clip(np.asarray(g, float), lo, hi), ds, cand, rows, config) ** 2)) for g in grid]
     order = np.argsort(costs)
     return [np.clip(np.asarray(grid[i], float), lo, hi) for i in order[: max(1, config.starts)]]
@@ -1106,6 +1111,7 @@ def fit_candidate(
             nfev += int(res.nfev)
             if best is None or res.cost < best.cost:
                 best = res
+        assert best is not None  # x0s is never empty
         x = np.asarray(best.x, float)
     coef, gain, r = _solve(_design(ds, cand, x, config.friction), ds, rows, config.trial_gain, config.gain_bounds,
                            level_sd=config.level_sd)
@@ -1172,8 +1178,9 @@ def _gain_scatter(gain: np.ndarray, ds: Prepared) -> float:
     return float(math.sqrt(np.sum(dev**2) / dof))
 
 
-def heldout_predictions(ds: Prepared, cand: Candidate, full: CandidateFit,
-                        config: DiagnosisConfig = DiagnosisConfig()) -> tuple[np.ndarray, np.ndarray, list[CandidateFit]]:
+def heldout_predictions(
+    ds: Prepared, cand: Candidate, full: CandidateFit, config: DiagnosisConfig = DiagnosisConfig()
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[CandidateFit]]:
     """Leave-one-speed-out predictions (g) for every row, and the fold fits.
 
     Parameters
@@ -1679,6 +1686,7 @@ def _identifiability(ds: Prepared, fit: CandidateFit, folds: list[CandidateFit],
     an effect's parameters."""
     cand = fit.candidate
     kern = cand.kernel
+    assert kern is not None  # called for the effects only
     g = np.where(np.isfinite(fit.gain), fit.gain, 1.0)[ds.trial]
 
     def model(x: np.ndarray) -> tuple[np.ndarray, _Design]:

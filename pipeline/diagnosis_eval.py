@@ -30,7 +30,7 @@ import math
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
@@ -156,10 +156,11 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
     t_gen = time.perf_counter() - t0
     clean = truth["tables"]["clean"]["force_effect_g"].to_numpy(float)
     table = synced.assign(row_id=np.arange(len(synced)))
-    out = dict(case=spec.index, effect=spec.effect or "none", strength=spec.strength, noise_level=spec.noise_level,
-               gap_to_noise=float(truth["gap_to_noise"]) if spec.effect else 0.0,
-               detectable=bool(truth["detectable"]) if spec.effect else False,
-               gap_rms_g=float(truth["gap_rms_g"]), noise_rms_g=float(truth["noise_rms_g"]), generate_s=t_gen)
+    out: dict[str, Any] = dict(
+        case=spec.index, effect=spec.effect or "none", strength=spec.strength, noise_level=spec.noise_level,
+        gap_to_noise=float(truth["gap_to_noise"]) if spec.effect else 0.0,
+        detectable=bool(truth["detectable"]) if spec.effect else False,
+        gap_rms_g=float(truth["gap_rms_g"]), noise_rms_g=float(truth["noise_rms_g"]), generate_s=t_gen)
     try:
         d = diagnose(table, config.diagnosis)
     except Exception as exc:  # a failed case is reported, not fatal to the evaluation

@@ -31,7 +31,7 @@ The predictions are first-order consequences of the library's functional forms
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -177,7 +177,7 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]
     if len(focus) < 2:
         return []
     preds = {e: effect_predictions(ds, fits[e]) for e in focus}
-    rows = []
+    rows: list[dict[str, Any]] = []
     for order, (exp, protocol) in enumerate(EXPERIMENTS.items()):
         changes = [preds[e][exp]["change_g"] for e in focus]
         known = [c for c in changes if c is not None]

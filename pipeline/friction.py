@@ -94,7 +94,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
-from typing import Literal, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Literal, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import pandas as pd
@@ -617,7 +617,7 @@ def insertion_force(
 #: the paper's TABLE I (not available to us): replace them when it is supplied. The two
 #: friction coefficients 0.12 and 0.18 are the paper's, but which one is static is not stated
 #: (0.18 static is assumed; :func:`fit_table` tests both assignments).
-RECONSTRUCTION: dict[str, object] = {
+RECONSTRUCTION: dict[str, float | str] = {
     "status": "reconstruction — replace with TABLE I values when available",
     # trajectory of an insertion (rad): tip from first contact to ~15 mm depth; the contact
     # start follows a fraction `lag` of the tip's advance (as the synthetic renderer's default)
@@ -999,7 +999,8 @@ def fit_table(
     rng = np.random.default_rng(seed)
 
     def model(x: np.ndarray, base: FrictionParams) -> np.ndarray:
-        fr = replace(base, **dict(zip(free, map(float, x))))
+        changes: dict[str, Any] = dict(zip(free, map(float, x)))
+        fr = replace(base, **changes)
         out = np.empty(len(y))
         for name, idx in groups.items():
             sub = ArcIntegrals(arcs.theta_con[idx], arcs.g0[idx], arcs.g1[idx], arcs.length_mm[idx])
@@ -1019,6 +1020,7 @@ def fit_table(
             res = least_squares(lambda x: model(x, base) - y, np.clip(x0, lo, hi), bounds=(lo, hi), x_scale="jac")
             if best is None or res.cost < best.cost:
                 best = res
+        assert best is not None  # candidates always holds x_first
         fits[label] = (base, best)
     label = min(fits, key=lambda k: fits[k][1].cost)
     base, res = fits[label]
@@ -1041,7 +1043,8 @@ def fit_table(
     rss_all = {lab: 2.0 * float(r.cost) for lab, (_, r) in fits.items()}
     if min(rss_all.values()) > 0 and max(rss_all.values()) / min(rss_all.values()) < 1.05:
         warnings.append("the two mu assignments fit almost equally well (RSS within 5 %): static/kinetic not identified")
-    fitted = replace(base, **dict(zip(free, map(float, res.x))))
+    fitted_values: dict[str, Any] = dict(zip(free, map(float, res.x)))
+    fitted = replace(base, **fitted_values)
     pred = model(res.x, base)
     residuals = table[["scenario", "speed_mm_s", "theta_con", "force_g"]].copy()
     residuals["model_g"] = pred

@@ -821,8 +821,9 @@ def fit_synced(
         if at_bound[j]:
             notes.append(f"{name} = {x[j]:.4g} is at its bound: its standard error is not meaningful")
         ci = _ci95(float(x[j]), float(se_u[method][j]), bool(is_log[j]), PARAM_BOUNDS[name])
+        se, se_naive, se_cluster, se_neff = (float(dx_du[j] * se_u[m][j]) for m in (method, "naive", "cluster", "neff"))
         params[name] = ParamEstimate(
-            float(x[j]), *(float(dx_du[j] * se_u[m][j]) for m in (method, "naive", "cluster", "neff")),
+            float(x[j]), se, se_naive, se_cluster, se_neff,
             at_bound=bool(at_bound[j]), ci95=(float(ci[0]), float(ci[1])), log_scale=bool(is_log[j]),
         )
     notes += _identifiability_notes(names, corr, jac, u, is_log, params, check_condition=not unidentified.any())

@@ -192,7 +192,8 @@ def _settings(*parts: Any) -> str:
     """A stable text of a stage's settings (dataclasses expanded), compared on resume."""
     from pipeline.io import to_jsonable
 
-    return repr([to_jsonable(dataclasses.asdict(p) if dataclasses.is_dataclass(p) else p) for p in parts])
+    return repr([to_jsonable(dataclasses.asdict(p) if dataclasses.is_dataclass(p) and not isinstance(p, type) else p)
+                  for p in parts])
 
 
 def _previous(out: Path) -> dict[str, dict]:
@@ -271,8 +272,8 @@ def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord
 
 
 def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord,
-          previous: dict) -> dict | None:
-    """The synced table; returns the sync report (``synced.sync.json`` content) or None."""
+          previous: dict) -> dict:
+    """The synced table; returns the sync report (``synced.sync.json`` content)."""
     import json
 
     from pipeline.sync import report_path, sync_manifest, write_sync
@@ -540,7 +541,9 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
             _remove(stale)
             continue
         _log(cfg, f"run: {name}")
-        ok &= _run_stage(name, stages[name], lambda fn=fn, name=name: fn(synced, out, cfg, stages[name], previous),
+        # mypy cannot infer the type of a lambda with default arguments (python/mypy#15459)
+        ok &= _run_stage(name, stages[name],
+                         lambda fn=fn, name=name: fn(synced, out, cfg, stages[name], previous),  # type: ignore[misc]
                          errors, stale)
 
     trials = trials_table(table, out, extract, sync_info)

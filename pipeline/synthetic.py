@@ -97,7 +97,7 @@ import time as _time
 from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
 from pathlib import Path
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Any, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -1212,7 +1212,7 @@ def effect_truth(effect: str | None, strength: float, values: Mapping[str, float
                      noise_rms_g=_rms(resid[speeds == v]), n=int(np.sum(speeds == v)))
                 for v in np.unique(speeds)]
     gap_rms, noise_rms = _rms(gap), _rms(resid)
-    out = dict(
+    out: dict[str, Any] = dict(
         effect=eff.name if eff is not None else None,
         strength=float(strength) if eff is not None else 0.0,
         params=dict(values),
@@ -1288,6 +1288,7 @@ def write_experiment(out_dir: str | Path, synced: pd.DataFrame, truth: Mapping, 
     for trial, part in synced.groupby("trial", sort=False):
         speed = float(part["speed_mm_s"].iloc[0])
         if use_frames:
+            assert frames is not None  # use_frames implies it
             ang = frames[frames["trial"] == trial].drop(columns="trial")
         else:
             t_force = part["time_s"].to_numpy(float)
@@ -1382,8 +1383,8 @@ def paper_case(rng: np.random.Generator, **kwargs) -> tuple[pd.DataFrame, dict]:
     **kwargs
         Passed to :func:`synthetic_dataset` (e.g. ``noise``).
     """
-    opts = dict(speeds_mm_s=(0.5, 1.5, 3.0, 5.0, 7.5), trials=10, depth_mm=15.0, variability=PAPER_VARIABILITY,
-                effect_params=PAPER_LIFT, strength=1.0)
+    opts: dict[str, Any] = dict(speeds_mm_s=(0.5, 1.5, 3.0, 5.0, 7.5), trials=10, depth_mm=15.0,
+                                variability=PAPER_VARIABILITY, effect_params=PAPER_LIFT, strength=1.0)
     opts.update(kwargs)
     synced, truth = synthetic_dataset(rng, "hydrodynamic_lift", **opts)
     clean = truth["tables"]["clean"]

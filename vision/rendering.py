@@ -646,7 +646,8 @@ def random_appearance(rng: np.random.Generator) -> Appearance:
     wall_level = float(rng.uniform(30, 90)) if rng.random() < 0.8 else float(min(255, background + 50))
     array_level = float(rng.uniform(20, min(fluid, background) - 50))
     band_level = float(rng.uniform(max(array_level + 60, 150), 255))
-    tint = tuple(float(t) for t in rng.uniform(0.85, 1.15, size=3))
+    b, g, r = (float(t) for t in rng.uniform(0.85, 1.15, size=3))
+    tint = (b, g, r)
     return Appearance(background, fluid, style, wall_level, float(rng.uniform(1.2, 3.0)), array_level, band_level, tint)
 
 
