@@ -785,7 +785,8 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
 def _count_ok(csv_path: Path) -> tuple[int, int] | None:
     """(rows, ok rows) of an existing angles table, None when it cannot be read."""
     try:
-        ok = pd.read_csv(csv_path, usecols=["ok"], true_values=["true", "True", "TRUE"], false_values=["false", "False", "FALSE"])["ok"]
+        ok = pd.read_csv(csv_path, usecols=["ok"], true_values=["true", "True", "TRUE"],
+                         false_values=["false", "False", "FALSE"])["ok"]
     except Exception:
         return None
     return len(ok), int((ok == True).sum())  # noqa: E712 - ok may be object dtype
@@ -931,7 +932,9 @@ def _as_items(items: Any) -> list[VideoItem]:
         if isinstance(item, VideoItem):
             out.append(item)
         elif isinstance(item, dict):
-            p = item.get("path", item.get("video"))
+            p = next((item[key] for key in ("path", "video") if not _blank(item.get(key))), None)
+            if p is None:
+                raise ValueError(f"a video item needs a 'path' or 'video': {item!r}")
             trial = None if _blank(item.get("trial")) else str(item["trial"])
             fps = None if _blank(item.get("fps")) else float(item["fps"])
             out.append(VideoItem(os.fspath(p), trial, fps))

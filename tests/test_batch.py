@@ -429,6 +429,16 @@ def test_batch_items_and_duplicate_trials(tmp_path, fake_vision):
         extract_batch([v, v], tmp_path / "out2", fake_vision, progress=False)
 
 
+def test_batch_dict_items_take_video_when_path_is_blank(tmp_path, fake_vision):
+    v = fakes.write_video(tmp_path / "v.mp4", n=4)
+    summary = extract_batch([{"path": None, "video": str(v), "trial": "a"}], tmp_path / "out", fake_vision,
+                            progress=False)
+    assert summary["status"].tolist() == ["ok"] and summary["path"].tolist() == [str(v)]
+    for item in ({"trial": "b"}, {"path": "", "video": None}):  # no video named: a clear error, not os.fspath's
+        with pytest.raises(ValueError, match="needs a 'path' or 'video'"):
+            extract_batch([item], tmp_path / "out2", fake_vision, progress=False)
+
+
 class _SerialExecutor:
     """The smallest executor: ``submit`` runs at once; futures only have ``result()``."""
 
