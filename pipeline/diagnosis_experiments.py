@@ -170,8 +170,10 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]
     list of dict
         One per experiment, best first: ``experiment``, ``protocol``, ``effects``,
         ``predictions`` ({effect: {change_g, words}}), ``min_difference_g`` (smallest difference
-        between two effects' predicted changes; None when a prediction is not fixed),
-        ``recommended`` (True for the first).
+        between two effects' predicted changes, among the effects whose prediction is fixed; None
+        when fewer than two are), ``complete`` (every effect's prediction is fixed; an incomplete
+        experiment ranks as if its difference were half as large), ``recommended`` (True for the
+        first).
     """
     focus = [e for e in dict.fromkeys(focus) if e in fits and fits[e].candidate.effect is not None]
     if len(focus) < 2:
@@ -182,7 +184,7 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]
         changes = [preds[e][exp]["change_g"] for e in focus]
         known = [c for c in changes if c is not None]
         diffs = [abs(a - b) for i, a in enumerate(known) for b in known[i + 1:]]
-        min_diff = min(diffs) if diffs and len(known) == len(changes) else (min(diffs) if diffs else None)
+        min_diff = min(diffs) if diffs else None
         rows.append(dict(experiment=exp, protocol=protocol, effects=list(focus),
                          predictions={e: {"change_g": preds[e][exp]["change_g"], "words": preds[e][exp]["words"]}
                                       for e in focus},

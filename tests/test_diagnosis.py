@@ -310,3 +310,31 @@ def test_smooth_angles_keeps_trends_and_cuts_noise():
     np.testing.assert_allclose(same["theta_tip"], clean["theta_tip"], atol=1e-9)  # a quadratic is kept exactly
     assert (same["theta_con"] >= 0).all()
     assert smooth_angles(noisy, 0.0) is noisy
+
+
+def test_splitting_experiments_rank_by_the_fixed_predictions(monkeypatch):
+    """Differences are taken among the fixed predictions; an experiment with one left open ranks as
+    if its difference were half as large."""
+    from types import SimpleNamespace
+
+    from pipeline import diagnosis_experiments as dx
+
+    table = {  # predicted change (g) of each experiment for each effect; None: not fixed
+        "a": {"retraction": 1.0, "viscosity": 0.0, "dwell": 0.0, "baseline": 0.0},
+        "b": {"retraction": 0.4, "viscosity": 0.9, "dwell": 0.0, "baseline": 0.0},
+        "c": {"retraction": 0.0, "viscosity": None, "dwell": None, "baseline": 0.0},
+    }
+    monkeypatch.setattr(dx, "effect_predictions",
+                        lambda ds, fit: {k: {"change_g": v, "words": "w"} for k, v in table[fit.name].items()})
+    fits = {e: SimpleNamespace(name=e, candidate=SimpleNamespace(effect=e)) for e in table}
+    rows = dx.splitting_experiments(None, fits, ["a", "b", "c"])
+    by = {r["experiment"]: r for r in rows}
+    assert by["retraction"]["min_difference_g"] == pytest.approx(0.4) and by["retraction"]["complete"]
+    assert by["viscosity"]["min_difference_g"] == pytest.approx(0.9) and not by["viscosity"]["complete"]
+    assert by["baseline"]["min_difference_g"] == 0.0 and by["baseline"]["complete"]
+    # viscosity ranks at 0.45 (half of 0.9, incomplete), above retraction's 0.4
+    assert [r["experiment"] for r in rows][:2] == ["viscosity", "retraction"] and rows[0]["recommended"]
+    # with "a" and "c" only, the dwell and the viscosity have one fixed prediction: no difference
+    by = {r["experiment"]: r for r in dx.splitting_experiments(None, fits, ["a", "c"])}
+    assert by["dwell"]["min_difference_g"] is None and not by["dwell"]["complete"]
+    assert by["retraction"]["min_difference_g"] == pytest.approx(1.0) and by["retraction"]["recommended"]
