@@ -525,6 +525,16 @@ def test_annotate_frame_draws_on_a_copy():
     assert failed.shape == (480, 640, 3)
 
 
+def test_text_stays_legible_on_small_frames():
+    from vision.drawing import draw_text
+
+    for width, min_rows in ((320, 8), (640, 9), (1280, 16)):  # Hershey simplex: about 8 px tall at 0.36
+        image = np.full((width * 3 // 4, width, 3), 100, np.uint8)
+        draw_text(image, ["tip 2.650 rad"])  # white text in a box darkened to 35 %
+        lit = np.flatnonzero((image[:, :, 0] > 180).any(axis=1))
+        assert lit.size and lit[-1] - lit[0] + 1 >= min_rows, width  # rows the text spans
+
+
 def test_annotate_video_with_labels(tmp_path, fake_vision):
     from pipeline.annotate import annotate_video, labels_frame, parse_label
 

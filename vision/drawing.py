@@ -67,6 +67,11 @@ def as_bgr(image: np.ndarray) -> np.ndarray:
     return img.copy()
 
 
+#: Smallest size factor of the text (:func:`draw_text`): 0.45 * 0.8 is Hershey simplex about 8 px
+#: tall, legible on a 320 px wide frame, where :func:`_scale` would give 5 px.
+_MIN_TEXT_SCALE = 0.8
+
+
 def _scale(image: np.ndarray) -> float:
     """Size factor for markers and text: 1 at 640 px width."""
     return max(0.5, image.shape[1] / 640.0)
@@ -257,7 +262,7 @@ def draw_text(image: np.ndarray, lines: Iterable[str], *, origin_px: tuple[int, 
     lines = [str(line) for line in lines]
     if not lines:
         return image
-    s = _scale(image)
+    s = max(_scale(image), _MIN_TEXT_SCALE)  # below this the text is a few px tall: unreadable
     font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.45 * s, 1
     sizes = [cv2.getTextSize(line, font, scale, thick) for line in lines]
     step = max(h + b for (_, h), b in sizes) + int(4 * s)
