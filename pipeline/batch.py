@@ -41,7 +41,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -49,7 +49,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from vision.errors import InputError, is_input_error, one_line
-from vision.frames import Frame, FrameSource, check_decoder_threads, open_frames, to_gray
+from vision.frames import Frame, FrameSource, LensCalibration, check_decoder_threads, open_frames, to_gray, undistorter
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -133,6 +133,10 @@ class ExtractConfig:
         A measured frame whose theta_tip or theta_bot lies more than this (rad) from the median
         of it and its two measured neighbours on each side is marked not ok as a glitch
         (:func:`flag_glitches`); 0 keeps every frame.
+    calibration : vision.frames.LensCalibration or None
+        The camera's lens: every frame is undistorted with it (:func:`vision.frames.undistorter`)
+        before it is registered, checked, measured or drawn, so angles are those of the ideal
+        pinhole image SPEC's similarity model describes. None: frames are taken as they are.
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -147,6 +151,7 @@ class ExtractConfig:
     measure_batch_mb: float = 32.0
     decoder_threads: int | None = None
     glitch_rad: float = 0.25
+    calibration: LensCalibration | None = None
 
     def __post_init__(self) -> None:
         if int(self.recheck_every) != self.recheck_every or self.recheck_every < 0:
@@ -268,6 +273,20 @@ def _frame_row(trial: str, frame: Frame, result: dict, epoch: int) -> dict:
     return row
 
 
+def _lens(calibration: LensCalibration, source: FrameSource, shape: tuple[int, ...]) -> Callable[[np.ndarray], np.ndarray]:
+    """The undistortion of ``source``'s frames of ``shape`` (px) by ``calibration``.
+
+    Raises
+    ------
+    InputError
+        The frames are not of the size the calibration was made at.
+    """
+    try:
+        return undistorter(calibration, shape)
+    except ValueError as exc:
+        raise InputError(source.path, str(exc)) from None
+
+
 def _check_due(cfg: ExtractConfig, index: int, last_registered_at: int) -> bool:
     """Whether frame ``index`` gets a registration check."""
     return bool(cfg.recheck_every) and index % cfg.recheck_every == 0 and index > last_registered_at
@@ -346,6 +365,7 @@ def measure_frames(
     plan: Any = None  # what measure_frame gets as its registration (see register_pending)
 
     queue: list[tuple[Frame, np.ndarray]] = []  # frames waiting to be measured with the current plan
+    undistort: Callable[[np.ndarray], np.ndarray] | None = None  # cfg.calibration's, made on the first frame
     lost: dict | None = None  # the open entry of log.lost while the registration is lost
 
     def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float, result: dict | None = None
@@ -481,9 +501,17 @@ def measure_frames(
             if frame is None:
                 break
             gray = to_gray(frame.image)
+            log.add_time("gray", time.perf_counter() - t1)
+            if cfg.calibration is not None:
+                t1 = time.perf_counter()
+                if undistort is None:
+                    undistort = _lens(cfg.calibration, source, gray.shape)
+                gray = undistort(gray)
+                if keep_colour:
+                    frame = Frame(frame.index, frame.time_s, undistort(frame.image))
+                log.add_time("undistort", time.perf_counter() - t1)
             if not keep_colour:
                 frame = Frame(frame.index, frame.time_s, gray)
-            log.add_time("gray", time.perf_counter() - t1)
             if bar is not None:
                 bar.update(1)
             if registration is not None and not pending:
@@ -723,6 +751,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     import vision.registration as reg_mod
 
     notes: list[str] = []
+    undistort: Callable[[np.ndarray], np.ndarray] | None = None  # cfg.calibration's, made on the first frame
     regs = log.registrations
     at = {int(r["frame"]): i for i, r in enumerate(rows)}
     # (registration in force before, frame where the move was seen, new registration or None, entry)
@@ -751,6 +780,9 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
                 if frame.index >= seen_at:
                     break
                 gray = to_gray(frame.image)
+                if cfg.calibration is not None:
+                    undistort = undistort or _lens(cfg.calibration, source, gray.shape)
+                    gray = undistort(gray)
                 if first is None:
                     if float(reg_mod.check(gray, old, cfg.phantom)) <= threshold:  # NaN: moved
                         continue

@@ -72,13 +72,18 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--glitch-rad", type=nonneg_float, default=0.25, metavar="RAD",
                        help="mark a frame not ok when an angle lies this far (rad) from the running median of its "
                             "measured neighbours (0: never; default 0.25)")
+    group.add_argument("--calibration", metavar="JSON",
+                       help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
+                            "frames are undistorted with it first")
 
 
 def _extract_config(args: argparse.Namespace):
     from pipeline.batch import ExtractConfig
+    from vision.frames import LensCalibration
 
+    calibration = LensCalibration.from_json(args.calibration) if args.calibration else None
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
-                         glitch_rad=args.glitch_rad)
+                         glitch_rad=args.glitch_rad, calibration=calibration)
 
 
 # --------------------------------------------------------------------------- extract
@@ -409,6 +414,7 @@ def _run_run(args: argparse.Namespace) -> int:
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
                "--glitch-rad", str(args.glitch_rad)]
     command += ["--fps", str(args.fps)] if args.fps else []
+    command += ["--calibration", args.calibration] if args.calibration else []
     command += ["--overwrite"] if args.overwrite else []
     command += ["--scheduler", args.scheduler] if args.scheduler else []
     with _scheduler(args, "run") as client:

@@ -10,7 +10,7 @@ import pytest
 
 from pipeline_fakes import H, W, frame_image, write_folder, write_video
 from vision.errors import InputError, is_input_error
-from vision.frames import Frame, FolderFrames, VideoFrames, open_frames, to_gray
+from vision.frames import Frame, FolderFrames, LensCalibration, VideoFrames, open_frames, to_gray, undistorter
 
 
 def _level(frame: Frame) -> float:
@@ -238,3 +238,60 @@ def test_to_gray_variants():
     assert to_gray(np.full((2, 2, 1), 0.5))[0, 0] in (127, 128)
     with pytest.raises(ValueError):
         to_gray(np.zeros((2, 2, 2), np.uint8))
+
+
+# --------------------------------------------------------------------------- lens calibration
+
+_BARREL = {"camera_matrix": [[520.0, 0.0, 205.0], [0.0, 520.0, 148.0], [0.0, 0.0, 1.0]],
+           "dist_coeffs": [[-0.3, 0.08, 0.0, 0.0, 0.0]], "image_size": [400, 300]}  # OpenCV writes 1 x n
+
+
+def test_calibration_reads_opencv_json_and_refuses_bad_files(tmp_path):
+    import json
+
+    good = tmp_path / "cal.json"
+    good.write_text(json.dumps(_BARREL))
+    cal = LensCalibration.from_json(good)
+    assert cal.dist_coeffs == (-0.3, 0.08, 0.0, 0.0, 0.0) and cal.image_size == (400, 300)
+    assert cal.camera_matrix[0] == (520.0, 0.0, 205.0)
+    again = tmp_path / "again.json"
+    again.write_text(json.dumps(cal.to_dict()))
+    assert LensCalibration.from_json(again) == cal  # to_dict writes what from_json reads
+    bad = {
+        "not a JSON": "{camera",
+        "a JSON object": "[1, 2]",
+        "lacks dist_coeffs": json.dumps({k: v for k, v in _BARREL.items() if k != "dist_coeffs"}),
+        "3x3": json.dumps({**_BARREL, "camera_matrix": [[1.0, 0.0], [0.0, 1.0]]}),
+        "fx, fy > 0": json.dumps({**_BARREL, "camera_matrix": [[-5.0, 0, 1], [0, 5.0, 1], [0, 0, 1]]}),
+        "4, 5 or 8": json.dumps({**_BARREL, "dist_coeffs": [0.1, 0.2, 0.3]}),
+        "whole px": json.dumps({**_BARREL, "image_size": [400.5, 300]}),
+        "finite": json.dumps({**_BARREL, "dist_coeffs": [0.1, 0.0, 0.0, "nan"]}),
+    }
+    for i, (words, text) in enumerate(bad.items()):
+        path = tmp_path / f"bad{i}.json"
+        path.write_text(text)
+        with pytest.raises(InputError, match=words) as info:
+            LensCalibration.from_json(path)
+        assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+    with pytest.raises(InputError, match="cannot read"):
+        LensCalibration.from_json(tmp_path / "missing.json")
+
+
+def test_undistortion_inverts_the_lens():
+    """A grid of lines bent by a barrel lens (vision.rendering.distort) comes back straight."""
+    from vision.rendering import distort
+
+    cal = LensCalibration(tuple(map(tuple, _BARREL["camera_matrix"])), tuple(_BARREL["dist_coeffs"][0]), (400, 300))
+    ideal = np.full((300, 400), 40, np.uint8)
+    ideal[:, ::25] = ideal[::25, :] = 220
+    ideal = cv2.GaussianBlur(ideal, (0, 0), 1.2)
+    bent = distort(ideal, cal)
+    straight = undistorter(cal, bent.shape)(bent)
+    inner = (slice(10, 290), slice(10, 390))  # the rim: what a barrel lens pushed out of the frame
+    before = np.abs(bent[inner].astype(float) - ideal[inner]).mean()  # grey levels
+    after = np.abs(straight[inner].astype(float) - ideal[inner]).mean()
+    assert before > 8.0 and after < 0.15 * before, (before, after)  # 11.4 -> 1.2: interpolation blur left
+    colour = undistorter(cal, (300, 400, 3))(cv2.cvtColor(bent, cv2.COLOR_GRAY2BGR))
+    assert colour.shape == (300, 400, 3) and np.array_equal(colour[..., 1], straight)
+    with pytest.raises(ValueError, match="400x300"):
+        undistorter(cal, (480, 640))

@@ -29,17 +29,25 @@ Damaged input
 - a folder without PNG/JPEG files, without ``fps``, with an unreadable image or with images of
   different sizes: :class:`InputError` naming the offending file. Frames are *not* resized: a
   size change in a folder means frames from different recordings were mixed.
+
+Lens distortion
+---------------
+SPEC's frame model is a similarity between phantom and image. A lens that bends straight lines
+breaks it (see README, *Known limits*); :class:`LensCalibration` (OpenCV's camera model, read
+from a JSON file) and :func:`undistorter` map each frame back to the ideal pinhole image first,
+with the same camera matrix, so scale and centre stay those of the recording.
 """
 
 from __future__ import annotations
 
 import abc
+import json
 import math
 import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -55,6 +63,8 @@ __all__ = [
     "open_frames",
     "to_gray",
     "check_decoder_threads",
+    "LensCalibration",
+    "undistorter",
 ]
 
 #: File name endings (lower case) of the still frames a folder source reads.
@@ -546,3 +556,104 @@ def open_frames(path: str | os.PathLike, *, fps: float | None = None, decoder_th
     if p.stat().st_size == 0:
         raise InputError(p, "empty file")
     return VideoFrames(p, fps=fps, decoder_threads=decoder_threads)
+
+
+# --------------------------------------------------------------------------- lens distortion
+
+
+@dataclass(frozen=True)
+class LensCalibration:
+    """A camera's intrinsics and lens distortion, in OpenCV's model (``cv2.calibrateCamera``).
+
+    Parameters
+    ----------
+    camera_matrix : tuple of tuples of float
+        ``((fx, 0, cx), (0, fy, cy), (0, 0, 1))`` (px), 3 x 3.
+    dist_coeffs : tuple of float
+        ``(k1, k2, p1, p2[, k3[, k4, k5, k6]])`` (dimensionless), 4, 5 or 8 of them.
+    image_size : tuple of int
+        ``(width, height)`` (px) of the images the calibration was made with; frames of another
+        size are refused rather than guessed at.
+    """
+
+    camera_matrix: tuple[tuple[float, ...], ...]
+    dist_coeffs: tuple[float, ...]
+    image_size: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.camera_matrix, dtype=float)
+        d = np.asarray(self.dist_coeffs, dtype=float)
+        if k.shape != (3, 3) or not np.isfinite(k).all():
+            raise ValueError(f"camera_matrix must be 3x3 finite numbers, not {self.camera_matrix!r}")
+        if not (k[0, 0] > 0 and k[1, 1] > 0 and k[0, 1] == k[1, 0] == k[2, 0] == k[2, 1] == 0 and k[2, 2] == 1):
+            raise ValueError("camera_matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+        if d.ndim != 1 or len(d) not in (4, 5, 8) or not np.isfinite(d).all():
+            raise ValueError(f"dist_coeffs must be 4, 5 or 8 finite numbers, not {self.dist_coeffs!r}")
+        w, h = self.image_size
+        if int(w) != w or int(h) != h or w < 1 or h < 1:
+            raise ValueError(f"image_size must be (width, height) in px, not {self.image_size!r}")
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> "LensCalibration":
+        """Read ``{"camera_matrix": [[...], [...], [...]], "dist_coeffs": [...],
+        "image_size": [width, height]}`` (px; other keys are ignored).
+
+        Raises
+        ------
+        InputError
+            Unreadable file, not JSON, a key missing or a value of the wrong shape.
+        """
+        p = Path(path)
+        try:
+            data = json.loads(p.read_text())
+        except OSError as exc:
+            raise InputError(p, f"cannot read the calibration ({exc.strerror or exc})") from None
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise InputError(p, f"not a JSON calibration ({exc})") from None
+        if not isinstance(data, dict):
+            raise InputError(p, "a calibration is a JSON object with camera_matrix, dist_coeffs and image_size")
+        missing = [key for key in ("camera_matrix", "dist_coeffs", "image_size") if key not in data]
+        if missing:
+            raise InputError(p, f"calibration lacks {', '.join(missing)}")
+        try:
+            d = np.asarray(data["dist_coeffs"], dtype=float).ravel()  # OpenCV writes a 1 x n array
+            k = np.asarray(data["camera_matrix"], dtype=float)
+            size = [float(v) for v in data["image_size"]]
+            if len(size) != 2 or not all(v == int(v) for v in size):
+                raise ValueError(f"image_size must be [width, height] in whole px, not {data['image_size']!r}")
+            return cls(tuple(tuple(float(x) for x in row) for row in np.atleast_2d(k)), tuple(float(x) for x in d),
+                       (int(size[0]), int(size[1])))
+        except (TypeError, ValueError) as exc:
+            raise InputError(p, f"bad calibration: {exc}") from None
+
+    def to_dict(self) -> dict:
+        """The JSON form :meth:`from_json` reads."""
+        return {"camera_matrix": [list(row) for row in self.camera_matrix], "dist_coeffs": list(self.dist_coeffs),
+                "image_size": list(self.image_size)}
+
+
+def undistorter(calibration: LensCalibration, shape: tuple[int, ...]) -> Callable[[np.ndarray], np.ndarray]:
+    """A function mapping frames of ``shape`` ((h, w[, c]), px) to their undistorted image.
+
+    The maps are built once (``cv2.initUndistortRectifyMap`` with the calibration's own camera
+    matrix as the new one, fixed-point); each call is one ``cv2.remap`` (bilinear). Pixels whose
+    source lies outside the frame repeat the nearest edge pixel rather than turning black, so
+    the undistorted frame's border adds no edges.
+
+    Raises
+    ------
+    ValueError
+        ``shape`` differs from the calibration's ``image_size``.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    if (w, h) != tuple(calibration.image_size):
+        cw, ch = calibration.image_size
+        raise ValueError(f"frames are {w}x{h} px but the lens calibration was made at {cw}x{ch} px")
+    k = np.asarray(calibration.camera_matrix, dtype=np.float64)
+    d = np.asarray(calibration.dist_coeffs, dtype=np.float64)
+    map1, map2 = cv2.initUndistortRectifyMap(k, d, None, k, (w, h), cv2.CV_16SC2)
+
+    def undistort(image: np.ndarray) -> np.ndarray:
+        return cv2.remap(image, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    return undistort

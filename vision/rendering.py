@@ -9,7 +9,9 @@ Pieces, from geometry to file:
 * :func:`array_centreline` — the array's centreline for a tip angle and contact start angle;
 * :func:`pose_at_depth` — the same for an insertion depth, following a :class:`ContactPolicy`;
 * :class:`Scene` — a static view (pose, appearance, nuisances) that draws frames;
-* :func:`render_video` — a whole insertion to mp4 or a PNG folder, with a truth table.
+* :func:`render_video` — a whole insertion to mp4 or a PNG folder, with a truth table;
+* :func:`distort` — what a lens with a given :class:`vision.frames.LensCalibration` makes of
+  a rendered (ideal pinhole) frame.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import pandas as pd
 from scipy.optimize import brentq
 
 from .angles import ContactAngles, contact_angles
+from .frames import LensCalibration
 from .geometry import (
     DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
@@ -52,6 +55,7 @@ __all__ = [
     "random_appearance",
     "random_nuisance",
     "render_video",
+    "distort",
 ]
 
 
@@ -752,3 +756,34 @@ def spec_to_dict(spec: VideoSpec) -> dict:
     """A JSON-ready dict of a :class:`VideoSpec` (pose keys as SPEC's registration JSON)."""
     d = asdict(spec)
     return json.loads(json.dumps(d, default=float))
+
+
+def distort(image: np.ndarray, calibration: LensCalibration) -> np.ndarray:
+    """The frame a camera with ``calibration``'s lens records of the ideal pinhole ``image``.
+
+    Each recorded pixel shows the ideal image where ``cv2.undistortPoints`` (with the camera
+    matrix as the new one) sends it, sampled bilinearly; ideal content beyond the frame repeats
+    its edge. :func:`vision.frames.undistorter` inverts this up to interpolation blur and the
+    parts of the ideal image a barrel lens pushes out of the frame.
+
+    Parameters
+    ----------
+    image : ndarray
+        Ideal frame, ``(h, w)`` or ``(h, w, 3)``, of ``calibration.image_size`` (px).
+    calibration : LensCalibration
+        The lens.
+
+    Returns
+    -------
+    ndarray
+        The distorted frame, same shape and dtype.
+    """
+    h, w = image.shape[:2]
+    if (w, h) != tuple(calibration.image_size):
+        raise ValueError(f"image is {w}x{h} px, the calibration {calibration.image_size}")
+    k = np.asarray(calibration.camera_matrix, dtype=np.float64)
+    d = np.asarray(calibration.dist_coeffs, dtype=np.float64)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1)[:, None, :]
+    ideal = cv2.undistortPoints(pts, k, d, P=k).reshape(h, w, 2).astype(np.float32)
+    return cv2.remap(image, ideal[..., 0], ideal[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
