@@ -134,9 +134,12 @@ class ExtractConfig:
         of it and its two measured neighbours on each side is marked not ok as a glitch
         (:func:`flag_glitches`); 0 keeps every frame.
     calibration : vision.frames.LensCalibration or None
-        The camera's lens: every frame is undistorted with it (:func:`vision.frames.undistorter`)
-        before it is registered, checked, measured or drawn, so angles are those of the ideal
-        pinhole image SPEC's similarity model describes. None: frames are taken as they are.
+        The camera's lens. Frames are undistorted with it (:func:`vision.frames.undistorter`)
+        before they are registered, checked or drawn, so the pose is that of the ideal pinhole
+        image SPEC's similarity model describes; the measurement samples the recorded frames
+        where the lens put its strip's points
+        (:meth:`~vision.frames.LensCalibration.distort_points`), which costs nothing a frame.
+        None: frames are taken as they are.
     """
 
     phantom: Phantom = DEFAULT_PHANTOM
@@ -368,6 +371,15 @@ def measure_frames(
     undistort: Callable[[np.ndarray], np.ndarray] | None = None  # cfg.calibration's, made on the first frame
     lost: dict | None = None  # the open entry of log.lost while the registration is lost
 
+    def ideal(gray: np.ndarray) -> np.ndarray:
+        """What registration and checks see of a grey frame: undistorted when there is a lens."""
+        if undistort is None:
+            return gray
+        t0 = time.perf_counter()
+        out = undistort(gray)
+        log.add_time("undistort", time.perf_counter() - t0)
+        return out
+
     def measured(frame: Frame, gray: np.ndarray, m: Any, seconds: float, result: dict | None = None
                  ) -> MeasuredFrame:
         """The row of one measurement ``m`` (an exception when it raised), ``seconds`` spent;
@@ -429,7 +441,7 @@ def measure_frames(
         at = pending[0][0].index
         t0 = time.perf_counter()
         try:
-            frames_used = [g for _, g in pending]
+            frames_used = [ideal(g) for _, g in pending]
             if cfg.registration is None:
                 new = reg_mod.register(frames_used, phantom)
             else:
@@ -468,7 +480,8 @@ def measure_frames(
         prepare = getattr(angles_mod, "prepare_measurement", None)
         if prepare is not None:  # per-registration precomputation, passed in its place
             t0 = time.perf_counter()
-            plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure)
+            lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
+            plan = prepare(new, pending[0][1].shape, phantom, cfg.array, cfg.measure, **lens)
             log.add_time("prepare", time.perf_counter() - t0)
             refusal = getattr(plan, "refusal", None)
             if refusal:  # every frame of this registration fails the same way: say it once
@@ -503,13 +516,12 @@ def measure_frames(
             gray = to_gray(frame.image)
             log.add_time("gray", time.perf_counter() - t1)
             if cfg.calibration is not None:
-                t1 = time.perf_counter()
-                if undistort is None:
+                if undistort is None:  # the frame size checked once
                     undistort = _lens(cfg.calibration, source, gray.shape)
-                gray = undistort(gray)
-                if keep_colour:
+                if keep_colour:  # drawn on: the ideal image, as the pose is
+                    t1 = time.perf_counter()
                     frame = Frame(frame.index, frame.time_s, undistort(frame.image))
-                log.add_time("undistort", time.perf_counter() - t1)
+                    log.add_time("undistort", time.perf_counter() - t1)
             if not keep_colour:
                 frame = Frame(frame.index, frame.time_s, gray)
             if bar is not None:
@@ -522,7 +534,7 @@ def measure_frames(
                     yield from enqueue(frame, gray)
                     continue
                 t2 = time.perf_counter()
-                residual = float(reg_mod.check(gray, registration, phantom))
+                residual = float(reg_mod.check(ideal(gray), registration, phantom))
                 log.add_time("check", time.perf_counter() - t2)
                 log.checks.append((frame.index, residual))
                 threshold = cfg.recheck_threshold_px(registration)
@@ -780,14 +792,15 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
                 if frame.index >= seen_at:
                     break
                 gray = to_gray(frame.image)
+                seen = gray  # what the checks see: the ideal image when there is a lens (the plans sample gray)
                 if cfg.calibration is not None:
                     undistort = undistort or _lens(cfg.calibration, source, gray.shape)
-                    gray = undistort(gray)
+                    seen = undistort(gray)
                 if first is None:
-                    if float(reg_mod.check(gray, old, cfg.phantom)) <= threshold:  # NaN: moved
+                    if float(reg_mod.check(seen, old, cfg.phantom)) <= threshold:  # NaN: moved
                         continue
                     first = frame.index
-                if new is not None and float(reg_mod.check(gray, new[0], cfg.phantom)) <= new_threshold:
+                if new is not None and float(reg_mod.check(seen, new[0], cfg.phantom)) <= new_threshold:
                     m = _try_measure(angles_mod, gray, new[1], cfg)
                     result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
                               if isinstance(m, Exception) else m.to_row())

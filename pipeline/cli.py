@@ -74,7 +74,7 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
                             "measured neighbours (0: never; default 0.25)")
     group.add_argument("--calibration", metavar="JSON",
                        help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
-                            "frames are undistorted with it first")
+                            "the lens is taken out of registration, checks and measurement")
 
 
 def _extract_config(args: argparse.Namespace):

@@ -601,3 +601,28 @@ def test_speed(scene: tuple[Scene, CameraPose, MeasurePlan]) -> None:
     finally:
         cv2.setNumThreads(threads)
     assert np.median(times) < 0.025
+
+
+def test_plan_samples_where_the_lens_puts_its_points():
+    """prepare_measurement(lens=...) moves the strip's sampling points by the lens and nothing
+    else; a frame recorded through a barrel lens is measured with the ideal pose as a frame of
+    the ideal camera is."""
+    from vision.frames import LensCalibration
+    from vision.rendering import distort
+
+    pose = CameraPose(330.0, 230.0, 0.4, 22.0, False)
+    plain = prepare_measurement(pose, (H, W))
+    shifted = prepare_measurement(pose, (H, W), lens=lambda p: p + np.array([3.0, -2.0]))
+    assert np.allclose(shifted.map_x, plain.map_x + 3.0, atol=1e-4) and np.allclose(shifted.map_y, plain.map_y - 2.0, atol=1e-4)
+    assert np.array_equal(shifted.p_mm, plain.p_mm) and np.array_equal(shifted.u, plain.u)
+    cal = LensCalibration(((600.0, 0.0, 320.0), (0.0, 600.0, 240.0), (0.0, 0.0, 1.0)), (-0.25, 0.0, 0.0, 0.0, 0.0), (W, H))
+    off_centre = CameraPose(220.0, 170.0, -1.0, 22.0, False)  # the tip far from the lens's centre
+    scene = Scene(off_centre, W, H, Appearance(), Nuisance(noise_sigma=1.0), rng=np.random.default_rng(3))
+    state = pose_at_depth(14.0)
+    bent = distort(scene.render(state), cal)
+    through_lens = measure_frame(bent, prepare_measurement(off_centre, (H, W), lens=cal.distort_points))
+    ignoring_it = measure_frame(bent, off_centre)
+    truth = state.truth  # measured: tip 0.0023 and bot 0.001 rad off through the lens, 0.56 and 2.4 ignoring it
+    assert through_lens.ok and abs(through_lens.theta_tip - truth.theta_tip) < 0.01
+    assert abs(through_lens.theta_bot - truth.theta_bot) < 0.05
+    assert not ignoring_it.ok or abs(ignoring_it.theta_tip - truth.theta_tip) > 0.1

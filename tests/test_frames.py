@@ -295,3 +295,26 @@ def test_undistortion_inverts_the_lens():
     assert colour.shape == (300, 400, 3) and np.array_equal(colour[..., 1], straight)
     with pytest.raises(ValueError, match="400x300"):
         undistorter(cal, (480, 640))
+
+
+def test_distort_points_is_where_the_lens_records_a_point():
+    """A small bright dot drawn at ideal points shows up, through vision.rendering.distort, at
+    LensCalibration.distort_points of them (to a tenth of a pixel); the identity lens leaves
+    points where they are."""
+    from vision.rendering import distort
+
+    cal = LensCalibration(tuple(map(tuple, _BARREL["camera_matrix"])), tuple(_BARREL["dist_coeffs"][0]), (400, 300))
+    ideal_pts = np.array([[60.0, 50.0], [340.0, 70.0], [205.0, 148.0], [90.0, 250.0], [330.0, 260.0]])
+    expected = cal.distort_points(ideal_pts)
+    for p, q in zip(ideal_pts, expected):
+        ideal = np.zeros((300, 400), np.float32)
+        ideal[int(p[1]), int(p[0])] = 1.0
+        ideal = cv2.GaussianBlur(ideal, (0, 0), 2.0)
+        seen = distort(ideal, cal)
+        ys, xs = np.mgrid[0:300, 0:400]
+        w = np.clip(seen - 0.2 * seen.max(), 0.0, None)
+        found = np.array([(w * xs).sum(), (w * ys).sum()]) / w.sum()
+        assert np.hypot(*(found - q)) < 0.1, (p, q, found)
+    assert np.linalg.norm(expected[0] - ideal_pts[0]) > 5.0  # the corner moves: the test has teeth
+    plain = LensCalibration(cal.camera_matrix, (0.0,) * 5, (400, 300))
+    assert np.allclose(plain.distort_points(ideal_pts), ideal_pts, atol=1e-9)

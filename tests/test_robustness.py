@@ -277,8 +277,9 @@ def _render_frames(path: Path, spec, scenes, hide=(), blank=()) -> pd.DataFrame:
 
 def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
     """A barrel lens (OpenCV k1 = -0.3 at f = 520 px: straight lines bow by up to ~9 px at the
-    frame's edge) bends the walls off SPEC's similarity; with --calibration the frames are
-    undistorted first and the tip comes out as on an ideal camera. A calibration of another
+    frame's edge) bends the walls off SPEC's similarity; with --calibration the registration
+    sees undistorted frames and the measurement samples where the lens put its points, and the
+    tip comes out as on an ideal camera. A calibration of another
     frame size fails that video alone, and a bad calibration file is a one-line error."""
     from vision.frames import LensCalibration
     from vision.geometry import CameraPose
@@ -305,7 +306,7 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
         table = pd.read_csv(tmp_path / name / "bent.angles.csv").merge(truth, on="frame", suffixes=("", "_true"))
         assert table["ok"].all()
         errors[name] = (table["theta_tip"] - table["theta_tip_true"]).abs()
-    # measured: median 0.0095 rad plain, 0.0014 calibrated; max 0.026 either way (one frame, not the lens)
+    # measured: median 0.0095 rad plain, 0.0014 calibrated; max 0.023 and 0.040, both on frame 10
     assert errors["calibrated"].median() < 0.004 and errors["calibrated"].median() < errors["plain"].median() / 3
     assert errors["calibrated"].max() < 0.05
     # a calibration made at another size (a distortion-free 320x240 lens): the 400x300 video fails

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import cv2
 import numpy as np
@@ -615,6 +615,7 @@ def prepare_measurement(
     phantom: Phantom = DEFAULT_PHANTOM,
     array: ElectrodeArray = DEFAULT_ARRAY,
     cfg: MeasureConfig = MeasureConfig(),
+    lens: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> MeasurePlan:
     """Build the straightened-channel strip of one registration (once per video).
 
@@ -633,6 +634,10 @@ def prepare_measurement(
         Geometry.
     cfg : MeasureConfig
         Settings.
+    lens : callable, optional
+        Maps ideal (pinhole) image points, an ``(n, 2)`` array in px, to where the camera's lens
+        records them (e.g. :meth:`vision.frames.LensCalibration.distort_points`): the strip then
+        samples the recorded frames themselves, and the pose is that of the undistorted image.
 
     Returns
     -------
@@ -647,7 +652,8 @@ def prepare_measurement(
     n_u = int(np.ceil(2 * cfg.lateral_extent * half.max() * ppm / offset_step_px / stride)) * stride + 1
     u = np.linspace(-cfg.lateral_extent, cfg.lateral_extent, n_u)
     xy = pts[None, :, :] + (u[:, None, None] * half[None, :, None]) * nrm[None, :, :]
-    img = pose.to_image(xy.reshape(-1, 2)).reshape(n_u, len(p), 2)
+    img = pose.to_image(xy.reshape(-1, 2))
+    img = (img if lens is None else lens(img)).reshape(n_u, len(p), 2)
     map_x = np.ascontiguousarray(img[..., 0], dtype=np.float32)
     map_y = np.ascontiguousarray(img[..., 1], dtype=np.float32)
     inside = (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)

@@ -33,9 +33,11 @@ Damaged input
 Lens distortion
 ---------------
 SPEC's frame model is a similarity between phantom and image. A lens that bends straight lines
-breaks it (see README, *Known limits*); :class:`LensCalibration` (OpenCV's camera model, read
-from a JSON file) and :func:`undistorter` map each frame back to the ideal pinhole image first,
-with the same camera matrix, so scale and centre stay those of the recording.
+breaks it (see README, *Known limits*). :class:`LensCalibration` holds OpenCV's camera model
+(read from a JSON file): :func:`undistorter` maps a frame back to the ideal pinhole image, with
+the same camera matrix so that scale and centre stay those of the recording (what registration
+and checks see), and :meth:`LensCalibration.distort_points` sends ideal points to where the lens
+records them (how the measurement samples the recorded frames directly).
 """
 
 from __future__ import annotations
@@ -625,6 +627,15 @@ class LensCalibration:
                        (int(size[0]), int(size[1])))
         except (TypeError, ValueError) as exc:
             raise InputError(p, f"bad calibration: {exc}") from None
+
+    def distort_points(self, points_px: np.ndarray) -> np.ndarray:
+        """Where the camera records ideal (pinhole) image points: ``(n, 2)`` px in, ``(n, 2)`` px
+        out (``cv2.projectPoints`` of the points' rays through the lens)."""
+        pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+        k = np.asarray(self.camera_matrix, dtype=np.float64)
+        rays = np.column_stack([(pts[:, 0] - k[0, 2]) / k[0, 0], (pts[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(pts))])
+        out, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, np.asarray(self.dist_coeffs, dtype=np.float64))
+        return out.reshape(-1, 2)
 
     def to_dict(self) -> dict:
         """The JSON form :meth:`from_json` reads."""
