@@ -439,9 +439,9 @@ def measure_frames(
         extends) a lost span instead of raising."""
         nonlocal registration, plan, epoch, last_registered_at, lost
         at = pending[0][0].index
+        frames_used = [ideal(g) for _, g in pending]
         t0 = time.perf_counter()
         try:
-            frames_used = [ideal(g) for _, g in pending]
             if cfg.registration is None:
                 new = reg_mod.register(frames_used, phantom)
             else:
@@ -533,8 +533,9 @@ def measure_frames(
                 if lost is None and not _check_due(cfg, frame.index, last_registered_at):
                     yield from enqueue(frame, gray)
                     continue
+                seen = ideal(gray)
                 t2 = time.perf_counter()
-                residual = float(reg_mod.check(ideal(gray), registration, phantom))
+                residual = float(reg_mod.check(seen, registration, phantom))
                 log.add_time("check", time.perf_counter() - t2)
                 log.checks.append((frame.index, residual))
                 threshold = cfg.recheck_threshold_px(registration)
