@@ -86,3 +86,14 @@ def speed_list(text: str) -> tuple[float, ...]:
     if not values or not all(0 < v < float("inf") for v in values):
         raise argparse.ArgumentTypeError(f"expected positive speeds in mm/s, got {text!r}")
     return values
+
+
+def diameter_pair(text: str) -> tuple[float, float]:
+    """``TIP,BASE``: the electrode array's diameters (mm) at its tip and at its base, each finite and > 0."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected TIP,BASE diameters in mm, got {text!r}") from None
+    if len(values) != 2 or not all(0 < v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected two positive diameters in mm (TIP,BASE), got {text!r}")
+    return values[0], values[1]

@@ -650,6 +650,9 @@ def extract_video(
     if glitches:
         notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
                      "median of its measured neighbours)")
+    width = array_width(rows, cfg.array)
+    if width["warning"]:
+        notes.append(width["warning"])
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
     table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
@@ -661,8 +664,49 @@ def extract_video(
         warnings=[*source.warnings, *log.warnings, *notes],
         timing_s=log.timing_s,
         source=source.info(),
+        array_width={k: v for k, v in width.items() if k != "warning"},
     )
     return table, log.first_registration
+
+
+def array_width(rows: list[dict], array: ElectrodeArray, *, tolerance: float = 0.1, min_frames: int = 10) -> dict:
+    """How wide the array looks against the model the measurement assumes.
+
+    The measurement reads the gap to the wall from the modelled diameters
+    (:class:`~vision.geometry.ElectrodeArray`), so an array wider or narrower than its model
+    biases every gap, and with them where contact begins (theta_bot). Each measured frame's
+    ``width_ratio`` (seen width between the two edges over the modelled width; about 1.01 for
+    rendered arrays of the modelled size, and 0.86 and 1.21 for arrays 15 % narrower and 20 %
+    wider) is pooled here.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Frame rows with ``ok`` and ``width_ratio`` (dimensionless; NaN or missing: not measured).
+    array : ElectrodeArray
+        The modelled array (its diameters, mm, are named in the warning).
+    tolerance : float
+        Largest ``|median - 1|`` (dimensionless) without a warning.
+    min_frames : int
+        Fewest frames with a ratio for a verdict.
+
+    Returns
+    -------
+    dict
+        ``median`` (dimensionless, NaN without frames), ``frames`` (how many had a ratio) and
+        ``warning`` (a sentence, or "" when the array matches its model or too few frames tell).
+    """
+    ratios = np.array([float(r["width_ratio"]) for r in rows if r.get("ok") and r.get("width_ratio") is not None],
+                      dtype=float)
+    ratios = ratios[np.isfinite(ratios)]
+    median = float(np.median(ratios)) if len(ratios) else math.nan
+    warning = ""
+    if len(ratios) >= min_frames and abs(median - 1.0) > tolerance:
+        warning = (f"the array looks {abs(median - 1.0):.0%} {'wider' if median > 1.0 else 'narrower'} than the modelled "
+                   f"one ({array.tip_diameter_mm:g} mm at the tip, {array.base_diameter_mm:g} mm at the base; median of "
+                   f"{len(ratios)} frames): its gaps to the wall, and so theta_bot, are biased; give its diameters "
+                   "(--array-diameters TIP,BASE)")
+    return {"median": median, "frames": int(len(ratios)), "warning": warning}
 
 
 def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.ndarray:
@@ -904,7 +948,8 @@ def process_video(
     warnings = list(table.attrs["warnings"])
     n_ok = int(table["ok"].sum())
     seconds = time.perf_counter() - t0
-    reg_record = {**registration.to_dict(), "registrations": registrations, "lost": table.attrs["lost"]}
+    reg_record = {**registration.to_dict(), "registrations": registrations, "lost": table.attrs["lost"],
+                  "array_width_ratio": table.attrs["array_width"]}
     prov = provenance(
         path,
         {"extract": cfg, "fps": fps, "trial": name},

@@ -18,10 +18,10 @@ import os
 import sys
 import traceback
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
-from pipeline.argtypes import int_list, nonneg_float, nonneg_int, positive_float, positive_int, speed_list
+from pipeline.argtypes import diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int, speed_list
 from vision.errors import InputError, is_input_error
 
 __all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
@@ -72,6 +72,8 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--glitch-rad", type=nonneg_float, default=0.25, metavar="RAD",
                        help="mark a frame not ok when an angle lies this far (rad) from the running median of its "
                             "measured neighbours (0: never; default 0.25)")
+    group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
+                       help="the electrode array's diameters in mm at its tip and its base (default: SPEC's 0.6,1.2)")
     group.add_argument("--calibration", metavar="JSON",
                        help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
                             "the lens is taken out of registration, checks and measurement")
@@ -80,10 +82,13 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
 def _extract_config(args: argparse.Namespace):
     from pipeline.batch import ExtractConfig
     from vision.frames import LensCalibration
+    from vision.geometry import DEFAULT_ARRAY
 
     calibration = LensCalibration.from_json(args.calibration) if args.calibration else None
+    array = DEFAULT_ARRAY if args.array_diameters is None else replace(
+        DEFAULT_ARRAY, tip_diameter_mm=args.array_diameters[0], base_diameter_mm=args.array_diameters[1])
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
-                         glitch_rad=args.glitch_rad, calibration=calibration)
+                         glitch_rad=args.glitch_rad, calibration=calibration, array=array)
 
 
 # --------------------------------------------------------------------------- extract
@@ -255,7 +260,6 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from dataclasses import replace
 
     from pipeline.bench import SECTIONS, BenchConfig, format_bench, run_bench
 
@@ -325,7 +329,6 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 
 def _run_render(args: argparse.Namespace) -> int:
-    from dataclasses import replace
 
     from pipeline.experiment import ExperimentConfig, render_experiment
     from pipeline.synthetic import hidden_effect_names
@@ -380,7 +383,6 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 
 def _run_config(args: argparse.Namespace, *, workers: int | None = None):
-    from dataclasses import replace
 
     from pipeline.run import RunConfig
 
@@ -415,6 +417,7 @@ def _run_run(args: argparse.Namespace) -> int:
                "--glitch-rad", str(args.glitch_rad)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--calibration", args.calibration] if args.calibration else []
+    command += ["--array-diameters", ",".join(f"{d:g}" for d in args.array_diameters)] if args.array_diameters else []
     command += ["--overwrite"] if args.overwrite else []
     command += ["--scheduler", args.scheduler] if args.scheduler else []
     with _scheduler(args, "run") as client:

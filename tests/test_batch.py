@@ -34,7 +34,7 @@ from pipeline.batch import (
 )
 from pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from vision.errors import InputError
-from vision.geometry import DEFAULT_PHANTOM, point_angle
+from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
 
 SPEC_REG_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
 
@@ -630,3 +630,19 @@ def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
     assert table["reason"].str.startswith("array too small in the image").all()
     said = [w for w in table.attrs["warnings"] if "too small" in w]
     assert len(said) == 1 and "film closer" in said[0]
+
+
+def test_array_width_pools_the_measured_frames():
+    from pipeline.batch import array_width
+
+    rows = [{"ok": True, "width_ratio": 1.2}] * 9
+    rows += [{"ok": False, "width_ratio": 5.0}, {"ok": True, "width_ratio": float("nan")}, {"ok": True}]  # none counts
+    few = array_width(rows, DEFAULT_ARRAY)
+    assert few["frames"] == 9 and few["median"] == pytest.approx(1.2) and few["warning"] == ""  # too few to tell
+    wide = array_width(rows + [{"ok": True, "width_ratio": 1.18}], DEFAULT_ARRAY)
+    assert wide["frames"] == 10 and "looks 20% wider" in wide["warning"] and "0.6 mm at the tip" in wide["warning"]
+    narrow = array_width([{"ok": True, "width_ratio": 0.88}] * 10, DEFAULT_ARRAY)
+    assert "looks 12% narrower" in narrow["warning"]
+    assert array_width([{"ok": True, "width_ratio": 1.09}] * 10, DEFAULT_ARRAY)["warning"] == ""  # within 10 %
+    empty = array_width([], DEFAULT_ARRAY)
+    assert empty["frames"] == 0 and math.isnan(empty["median"]) and empty["warning"] == ""

@@ -16,6 +16,7 @@ that plan in place of the registration::
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -351,7 +352,10 @@ class FrameMeasurement:
         Diagnostics: ``depth_mm`` (length of array past ``theta_start``, mm; negative when the
         tip is in the entry channel), ``contrast`` (fluid minus array, grey levels),
         ``edge_fraction`` (fraction of the array's stations whose edges were used),
-        ``time_ms`` (ms spent on the frame).
+        ``width_ratio`` (the array's width between its two edges over the modelled
+        :class:`~vision.geometry.ElectrodeArray`'s, median over the stations where both show;
+        NaN where fewer than 10 do: about 1.01 when the model is right), ``time_ms`` (ms spent
+        on the frame).
     timings : dict of str to float
         Seconds spent per stage (``survey``, ``edges``, ``centre_line``, ``angles``); not in
         :meth:`to_row`.
@@ -1745,6 +1749,7 @@ class _CentreLine:
     gap: np.ndarray
     radius: np.ndarray
     measured: np.ndarray
+    width_ratio: float  # seen width over modelled width, median where both edges show (NaN: < 10 such)
 
 
 def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
@@ -1788,13 +1793,15 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
         return None
     # where both edges show, the array must be about as wide as it is (noise is not)
     both = e.ok_in & e.ok_out & (stations <= tip_f) & (s >= plan.r_tip_mm)
+    width = 2.0 * radius * stretch
+    width_ratio = math.nan
     if both.sum() >= 10:
-        width = 2.0 * radius * stretch
         fits = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
         if fits[both].mean() < 0.5:
             return None
+        width_ratio = _quantile((e.v_out - e.v_in)[both] / width[both], 0.5)
     centre, gap = _smooth_valid(np.vstack([v_c, half - v_c - radius * stretch]), measured, k_smooth)[0]
-    return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured)
+    return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured, width_ratio)
 
 
 # --------------------------------------------------------------------------- stages 2–3 on a batch
@@ -2189,6 +2196,8 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     keep = np.flatnonzero(good)
     if not len(keep):
         return out
+    seen = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
+    width_ratio = np.where(n_both >= 10, _row_quantiles(rg.pad(seen, 0.0), rg.pad(both, False), 0.5), np.nan)
     sub, part = rg.subset(keep)
     ok = measured[sub]
     (centre, gap), _ = _smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
@@ -2196,7 +2205,8 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     radius = radius[sub]
     for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
         a = slice(s0, s0 + m_b)
-        out[int(live[b])] = _CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a])
+        out[int(live[b])] = _CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a],
+                                        float(width_ratio[b]))
     return out
 
 
@@ -2392,10 +2402,16 @@ def _after_survey(img: np.ndarray, plan: MeasurePlan, sv: _Survey | FrameMeasure
         failed = _fail("array edges not found", contrast=sv.contrast)
         failed.timings.update(timings)
         return failed
-    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
+    result = _result(plan, e, c, _extras(sv.contrast, c))
     timings["angles"] = time.perf_counter() - t3
     result.timings.update(timings)
     return result
+
+
+def _extras(contrast: float, c: _CentreLine) -> dict[str, float]:
+    """The diagnostics of a frame with a centre line (see :class:`FrameMeasurement`'s ``extras``):
+    its ``contrast`` (grey levels), edge fraction and width ratio."""
+    return dict(contrast=contrast, edge_fraction=float(c.measured.sum()) / len(c.measured), width_ratio=c.width_ratio)
 
 
 def _staged_result(plan: MeasurePlan, sv: _Survey, e: _Edges, c: _CentreLine | None,
@@ -2407,7 +2423,7 @@ def _staged_result(plan: MeasurePlan, sv: _Survey, e: _Edges, c: _CentreLine | N
         failed.timings.update(timings)
         return failed
     t0 = time.perf_counter()
-    result = _result(plan, e, c, dict(contrast=sv.contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
+    result = _result(plan, e, c, _extras(sv.contrast, c))
     timings["angles"] = time.perf_counter() - t0
     result.timings.update(timings)
     return result
@@ -2561,7 +2577,7 @@ def measure_frames_batch(
             try:  # stage 4 together; on any error, frame by frame below
                 with np.errstate(divide="ignore", invalid="ignore"):
                     finals = _results_batch(plan, [
-                        (e, c, dict(contrast=found[k].contrast, edge_fraction=float(c.measured.sum()) / len(c.measured)))
+                        (e, c, _extras(found[k].contrast, c))
                         for k, (e, c) in lines_found.items()])
                 angles_s = (time.perf_counter() - t4) / len(measured)
                 for k, result in zip(measured, finals):
