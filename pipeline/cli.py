@@ -260,7 +260,6 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-
     from pipeline.bench import SECTIONS, BenchConfig, format_bench, run_bench
 
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
@@ -329,7 +328,6 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 
 def _run_render(args: argparse.Namespace) -> int:
-
     from pipeline.experiment import ExperimentConfig, render_experiment
     from pipeline.synthetic import hidden_effect_names
 
@@ -383,7 +381,6 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 
 def _run_config(args: argparse.Namespace, *, workers: int | None = None):
-
     from pipeline.run import RunConfig
 
     if str(args.scenario).lower() != "none" and str(args.scenario).upper() not in ("S1", "S2", "S3", "S4"):

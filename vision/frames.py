@@ -628,13 +628,24 @@ class LensCalibration:
         except (TypeError, ValueError) as exc:
             raise InputError(p, f"bad calibration: {exc}") from None
 
+    def opencv(self) -> tuple[np.ndarray, np.ndarray]:
+        """The camera matrix (3 x 3, px) and distortion coefficients as OpenCV takes them (float64)."""
+        return np.asarray(self.camera_matrix, dtype=np.float64), np.asarray(self.dist_coeffs, dtype=np.float64)
+
+    def check_size(self, shape: tuple[int, ...]) -> None:
+        """Raise ValueError unless images of ``shape`` ((h, w[, c]), px) are the calibration's size."""
+        h, w = int(shape[0]), int(shape[1])
+        if (w, h) != tuple(self.image_size):
+            cw, ch = self.image_size
+            raise ValueError(f"frames are {w}x{h} px but the lens calibration was made at {cw}x{ch} px")
+
     def distort_points(self, points_px: np.ndarray) -> np.ndarray:
         """Where the camera records ideal (pinhole) image points: ``(n, 2)`` px in, ``(n, 2)`` px
         out (``cv2.projectPoints`` of the points' rays through the lens)."""
         pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
-        k = np.asarray(self.camera_matrix, dtype=np.float64)
+        k, d = self.opencv()
         rays = np.column_stack([(pts[:, 0] - k[0, 2]) / k[0, 0], (pts[:, 1] - k[1, 2]) / k[1, 1], np.ones(len(pts))])
-        out, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, np.asarray(self.dist_coeffs, dtype=np.float64))
+        out, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, d)
         return out.reshape(-1, 2)
 
     def to_dict(self) -> dict:
@@ -656,13 +667,9 @@ def undistorter(calibration: LensCalibration, shape: tuple[int, ...]) -> Callabl
     ValueError
         ``shape`` differs from the calibration's ``image_size``.
     """
-    h, w = int(shape[0]), int(shape[1])
-    if (w, h) != tuple(calibration.image_size):
-        cw, ch = calibration.image_size
-        raise ValueError(f"frames are {w}x{h} px but the lens calibration was made at {cw}x{ch} px")
-    k = np.asarray(calibration.camera_matrix, dtype=np.float64)
-    d = np.asarray(calibration.dist_coeffs, dtype=np.float64)
-    map1, map2 = cv2.initUndistortRectifyMap(k, d, None, k, (w, h), cv2.CV_16SC2)
+    calibration.check_size(shape)
+    k, d = calibration.opencv()
+    map1, map2 = cv2.initUndistortRectifyMap(k, d, None, k, tuple(calibration.image_size), cv2.CV_16SC2)
 
     def undistort(image: np.ndarray) -> np.ndarray:
         return cv2.remap(image, map1, map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

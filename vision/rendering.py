@@ -778,11 +778,9 @@ def distort(image: np.ndarray, calibration: LensCalibration) -> np.ndarray:
     ndarray
         The distorted frame, same shape and dtype.
     """
+    calibration.check_size(image.shape)
     h, w = image.shape[:2]
-    if (w, h) != tuple(calibration.image_size):
-        raise ValueError(f"image is {w}x{h} px, the calibration {calibration.image_size}")
-    k = np.asarray(calibration.camera_matrix, dtype=np.float64)
-    d = np.asarray(calibration.dist_coeffs, dtype=np.float64)
+    k, d = calibration.opencv()
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     pts = np.stack([xs.ravel(), ys.ravel()], axis=1)[:, None, :]
     ideal = cv2.undistortPoints(pts, k, d, P=k).reshape(h, w, 2).astype(np.float32)
