@@ -509,6 +509,8 @@ COMMANDS: dict[str, Command] = {
     ),
     "simulate": Command(_force_cli.SIMULATE_HELP, _force_cli.configure_simulate, _force_cli.run_simulate,
                         _force_cli.SIMULATE_DESCRIPTION),
+    "paper": Command(_force_cli.PAPER_HELP, _force_cli.configure_paper, _force_cli.run_paper,
+                     _force_cli.PAPER_DESCRIPTION),
     "fit": Command(_force_cli.FIT_HELP, _force_cli.configure_fit, _force_cli.run_fit, _force_cli.FIT_DESCRIPTION),
     "sync": Command(_sync_bounds_cli.SYNC_HELP, _sync_bounds_cli.configure_sync, _sync_bounds_cli.run_sync,
                     _sync_bounds_cli.SYNC_DESCRIPTION),

@@ -6,7 +6,7 @@
 Candidates
 ----------
 - ``base``: the SPEC §4 model with the *nominal* friction law (:attr:`DiagnosisConfig.friction`,
-  by default the paper's mu_s = 0.18, mu_k = 0.12 with v_s = 1 mm/s, delta_s = 2: the
+  by default the paper's mu_s = 0.18, mu_k = 0.12 with the v_s and delta_s fitted to TABLE II: the
   simulation's) and the four pressure coefficients identified (Eq. 6, each linear in theta_con).
 - ``control``: the same with the whole friction law re-identified (``mu_s``, ``mu_k``, ``v_s``,
   ``mu_v``). An effect must beat it, so that no effect is credited with what a better-fitted
@@ -103,7 +103,15 @@ from vision.errors import InputError
 from vision.geometry import DEFAULT_PHANTOM, Phantom
 
 from .effects import EFFECTS, EffectContext
-from .friction import G_N, FrictionParams, arc_integrals, contact_geometry, stribeck
+from .friction import (
+    DEFAULT_FRICTION_MODE,
+    G_N,
+    FrictionMode,
+    FrictionParams,
+    arc_integrals,
+    contact_geometry,
+    stribeck,
+)
 from .identify import PARAM_BOUNDS, SYNCED_COLUMNS, _corr, _covariances, _lag1, _not_moving, read_synced, validate_synced
 
 __all__ = [
@@ -145,7 +153,7 @@ DATA_NEEDED = ("the diagnosis needs at least 3 insertion speeds with at least 2 
 PHASES = ("before", "early", "middle", "late", "dwell")
 
 _FRICTION_CONTROL = ("mu_s", "mu_k", "log_v_s", "mu_v_s_per_mm")
-_CONTACT_WIDTH_MM = 0.3  # held, as in pipeline.identify (only b_c * p enters the force)
+_CONTACT_WIDTH_MM = FrictionParams().contact_width_mm  # held, as in pipeline.identify (only b_c * p enters)
 
 
 # --------------------------------------------------------------------------- configuration
@@ -172,6 +180,8 @@ class DiagnosisConfig:
         Nominal friction law of ``base`` and the effect candidates (``mu_s``, ``mu_k``
         dimensionless, ``v_s_mm_s`` mm/s, ``delta_s``, ``mu_v_s_per_mm`` s/mm); its pressures
         are ignored (always identified).
+    friction_mode : {"axial", "vector"}
+        Friction projection of the model (:mod:`pipeline.friction`).
     trial_gain : bool
         Fit a per-trial gain on the contact force (mean per speed within its random range of 1).
     gain_bounds : tuple of float
@@ -210,6 +220,7 @@ class DiagnosisConfig:
     angle_smoothing_s: float = 0.6
     effects: tuple[str, ...] = tuple(EFFECTS)
     friction: FrictionParams = field(default_factory=FrictionParams)
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE
     trial_gain: bool = True
     gain_bounds: tuple[float, float] = (0.5, 1.5)
     level_sd: float = 2.0
@@ -356,7 +367,7 @@ class ArcQuadrature:
 
 
 def _arc_quadrature(theta_bot: np.ndarray, theta_tip: np.ndarray, theta_hi: float, phantom: Phantom,
-                    nodes: int = 12) -> ArcQuadrature:
+                    friction_mode: FrictionMode, nodes: int = 12) -> ArcQuadrature:
     geom = contact_geometry(phantom)
     s_b, s_t = geom.wall_s(theta_bot), geom.wall_s(theta_tip)
     length = np.maximum(s_t - s_b, 0.0)
@@ -366,7 +377,8 @@ def _arc_quadrature(theta_bot: np.ndarray, theta_tip: np.ndarray, theta_hi: floa
     theta = np.interp(s, geom.s, geom.theta)
     dtheta = np.maximum(theta - np.interp(s_b, geom.s, geom.theta)[:, None], 0.0)
     w1 = np.clip((theta_tip - theta_bot) / theta_hi, 0.0, None)
-    return ArcQuadrature(u=u, gn=geom.seg_g[k, 0], gt=geom.seg_g[k, 1], dtheta=dtheta, ds=length / nodes, w1=w1)
+    gt = geom.seg_g[k, 1] if friction_mode == "vector" else np.ones_like(s)
+    return ArcQuadrature(u=u, gn=geom.seg_g[k, 0], gt=gt, dtheta=dtheta, ds=length / nodes, w1=w1)
 
 
 def _subsample_index(n_rows: int, keep: int) -> np.ndarray:
@@ -376,7 +388,8 @@ def _subsample_index(n_rows: int, keep: int) -> np.ndarray:
     return np.arange((n_rows - 1) % stride, n_rows, stride)
 
 
-def _pressure_design(arcs, theta_con: np.ndarray, theta_hi: float) -> tuple[np.ndarray, np.ndarray]:
+def _pressure_design(arcs, theta_con: np.ndarray, theta_hi: float,
+                     friction_mode: FrictionMode) -> tuple[np.ndarray, np.ndarray]:
     """``a_n, a_t`` (g/MPa): the force is ``(a_n + mu a_t) @ u`` with ``u`` the pressures
     ``(p_tip(0), p_tip(theta_hi), p_bot(0), p_bot(theta_hi))`` (MPa), linear in theta_con."""
     k = _CONTACT_WIDTH_MM / G_N
@@ -388,7 +401,7 @@ def _pressure_design(arcs, theta_con: np.ndarray, theta_hi: float) -> tuple[np.n
         bot = arcs.g1[:, col]
         return k * np.stack([tip * w0, tip * w1, bot * w0, bot * w1], axis=1)
 
-    return part(0), part(1)
+    return part(0), part(1 if friction_mode == "vector" else 2)
 
 
 def _lag_groups(trial: np.ndarray, time_s: np.ndarray) -> tuple:
@@ -557,8 +570,8 @@ def prepare(
     theta_hi = float(max(theta_con.max(), 1e-3))
     bot_r, tip_r = rows["theta_bot"].to_numpy(float), rows["theta_tip"].to_numpy(float)
     arcs = arc_integrals(bot_r, tip_r, phantom)
-    a_n, a_t = _pressure_design(arcs, theta_con, theta_hi)
-    quad = _arc_quadrature(bot_r, tip_r, theta_hi, phantom)
+    a_n, a_t = _pressure_design(arcs, theta_con, theta_hi, config.friction_mode)
+    quad = _arc_quadrature(bot_r, tip_r, theta_hi, phantom, config.friction_mode)
     if "depth_mm" in rows.columns and rows["depth_mm"].notna().any():
         depth = pd.to_numeric(rows["depth_mm"], errors="coerce").to_numpy(float)
         entry = np.clip(np.nan_to_num(depth) + phantom.entry_length_mm, 0.0, phantom.entry_length_mm)
@@ -1001,7 +1014,7 @@ class CandidateFit:
 
     def params(self, theta_hi: float) -> dict[str, float]:
         """Named parameter values: the friction law (``mu_s``, ``mu_k``, ``v_s_mm_s`` mm/s,
-        ``delta_s``, ``mu_v_s_per_mm`` s/mm), SPEC pressures for ``contact_width_mm`` = 0.3 mm (MPa,
+        ``delta_s``, ``mu_v_s_per_mm`` s/mm), pressures for ``contact_width_mm`` = 0.03453 mm (MPa,
         MPa/rad) and the effect's parameters in :data:`pipeline.effects.EFFECTS` units."""
         law = self.friction
         out = dict(mu_s=law.mu_s, mu_k=law.mu_k, v_s_mm_s=law.v_s_mm_s, delta_s=law.delta_s,

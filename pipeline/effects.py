@@ -24,6 +24,7 @@ import pandas as pd
 from scipy.signal import lfilter
 
 from vision.geometry import DEFAULT_PHANTOM, Phantom
+from .friction import DEFAULT_FRICTION_MODE, FrictionMode
 
 __all__ = ["EffectContext", "Effect", "EFFECTS", "effect_names", "bump_integrals", "first_order_lag"]
 
@@ -34,13 +35,16 @@ G_N = 9.80665e-3  # newtons per gram-force
 
 
 def bump_integrals(
-    theta_bot: np.ndarray, theta_tip: np.ndarray, phantom: Phantom = DEFAULT_PHANTOM, nodes: int = 16
+    theta_bot: np.ndarray, theta_tip: np.ndarray, phantom: Phantom = DEFAULT_PHANTOM, nodes: int = 16,
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE,
 ) -> np.ndarray:
     """Integrals of a mid-arc pressure bump over the contact arcs.
 
     For ``u = s / l_con`` along the arc and the bump ``b(u) = 4 u (1 - u)`` (1 at mid-arc, 0 at
-    both ends), returns ``(integral b (n_out . x_w) ds, integral b (t . x_w) ds)`` in mm, by
-    midpoint quadrature on the outer wall. Zero where there is no contact.
+    both ends), returns ``(integral b (n_out . x_w) ds, integral b t_f ds)`` in mm, by midpoint
+    quadrature on the outer wall, with ``t_f`` the friction's component along the insertion axis
+    (1 for the default axial projection, ``t . x_w`` for the vector sum; :mod:`pipeline.friction`).
+    Zero where there is no contact.
 
     Parameters
     ----------
@@ -50,6 +54,8 @@ def bump_integrals(
         Geometry.
     nodes : int
         Quadrature nodes per arc.
+    friction_mode : {"axial", "vector"}
+        Friction projection.
 
     Returns
     -------
@@ -61,7 +67,8 @@ def bump_integrals(
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
     normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)
     _, x_w, _ = _entry_axis(phantom)
-    proj = np.stack([normal @ x_w, tangent @ x_w], axis=1)  # (m, 2)
+    along = tangent @ x_w if friction_mode == "vector" else np.ones(len(s_wall))
+    proj = np.stack([normal @ x_w, along], axis=1)  # (m, 2)
     bot = np.nan_to_num(np.asarray(theta_bot, dtype=float))
     tip = np.nan_to_num(np.asarray(theta_tip, dtype=float))
     s_b = np.interp(bot, wall.theta, s_wall)

@@ -41,7 +41,8 @@ from vision.rendering import (
     render_video,
 )
 
-from .friction import SCENARIOS, FrictionParams, insertion_force
+from .friction import FrictionParams, insertion_force
+from .paper import paper_params
 from .io import atomic_write_csv, atomic_write_json
 
 __all__ = ["ExperimentConfig", "SensorConfig", "random_policy", "clean_forces_from_truth", "force_log_from_truth",
@@ -271,7 +272,7 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     rng = np.random.default_rng(seed)
     pose = random_pose(rng, cfg.width, cfg.height, px_per_mm=(20.0, 40.0))
     look = random_appearance(rng)
-    params = SCENARIOS["S4"].params()
+    params = paper_params()
     effect_rng = np.random.default_rng([seed, 5])  # apart from rng: same videos and noise with or without
     effect = None if cfg.effect is None or str(cfg.effect).lower() == "none" else str(cfg.effect)
     values = {}

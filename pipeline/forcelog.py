@@ -100,7 +100,8 @@ class ForceLogConfig:
         ``(1 - 1e-6) * sensor_range_g`` are then clipped, whatever the run length.
     plausible_peak_g : tuple of float
         Peak |force| (g) expected of an insertion; a log outside this range whose values would
-        be inside it in the other unit gets a wrong-units warning.
+        be inside it in the other unit gets a wrong-units warning. Reported insertion forces stay
+        well under 1.5 N (150 g): in-vivo peaks of 45–102 mN, phantom insertions of 0.1–0.2 N.
     min_samples : int
         Fewest samples a usable log has (after cleaning).
     """
@@ -112,7 +113,7 @@ class ForceLogConfig:
     saturation_policy: Literal["flag", "drop", "error"] = "flag"
     saturation_min_run: int = 5
     sensor_range_g: float | None = None
-    plausible_peak_g: tuple[float, float] = (0.5, 500.0)
+    plausible_peak_g: tuple[float, float] = (0.5, 150.0)
     min_samples: int = 3
 
     def __post_init__(self) -> None:

@@ -1,4 +1,4 @@
-"""The insertion-force model of SPEC §4 (seed paper, Eqs. 2–7), vectorised.
+"""The insertion-force model of the seed paper (Eqs. 2–7), vectorised.
 
 Model
 -----
@@ -20,53 +20,34 @@ basally. ``mu(v)`` is the Stribeck law (Eq. 7)::
 
     mu(v) = mu_k + (mu_s - mu_k) exp(-|v / v_s|^delta_s) + mu_v |v|
 
-The sensed force is the reaction the robot must supply (Eqs. 2–5)::
+The sensed force is the reaction the robot must supply, along the insertion axis ``x_w`` (the
+backbone tangent at ``theta_start``, pointing into the spiral), in grams-force::
 
-    f_ins = -sum_i (n_i + f_i) = b_c [ integral p n_out ds + sign(v) mu(v) integral p t ds ]
-    F     = f_ins . x_w / 9.80665e-3                                  [grams-force]
+    F = b_c [ integral p (n_out . x_w) ds + sign(v) mu(v) integral p (t_f . x_w) ds ] / 9.80665e-3
 
-with ``x_w`` the insertion axis (the backbone tangent at ``theta_start``, pointing into the
-spiral).
+Two readings of the friction term (``friction_mode``):
+
+- ``"axial"`` (**default**): every element's friction magnitude is transmitted along the array
+  to its base, ``t_f . x_w = 1``. This is the reading that reproduces the paper's TABLE II,
+  its speed effect in particular (:mod:`pipeline.paper`, ``tympani paper``): fitted to the
+  table it falls by 1.05–1.77 % from 0.5 to 7.5 mm/s at every step, as the table does
+  (1.03–1.94 %), with every cell within 6.3 %.
+- ``"vector"``: the friction vectors are summed and then projected, ``t_f = t``, as Eqs. (2)–(5)
+  read literally. Deep in the spiral the wall has turned more than 90° away from ``x_w``
+  (``t . x_w < 0`` beyond about 2.7 rad), so friction there *lowers* F and the net friction
+  term nearly cancels on long arcs: fitted to TABLE II it gives every cell within 4.8 % but a
+  speed drop of only 0.02–1.2 % (0.02 % at the step where the table falls by 1.0 %), and no
+  Stribeck constants can do better: projected that way, friction is a few per cent of the
+  sensed force on those arcs, and ``mu_s - mu_k`` is 0.06.
 
 Sign convention (checked, not flipped)
 --------------------------------------
-With SPEC's conventions the force is **positive** (the robot pushes the array in) for realistic
-contact arcs: checked (tests/test_friction.py) for every arc with ``1.0 <= theta_bot <
-theta_tip <= 4.0`` rad, non-negative pressures and ``mu <= 0.25``, and for ``theta_bot <= 2.6``
-rad with ``mu <= 0.5``. Two features of SPEC's geometry give *negative* F elsewhere, and they
-are reported, not flipped:
-
-- arcs lying within ~0.8 rad of ``theta_start``: Eq. (1)'s log branch makes the outer wall
-  first turn *away* from the centre (clockwise), so its outward normal points against ``x_w``
-  there (``n_out . x_w < 0`` for theta in (0.18, 0.95) rad); the array does not touch the outer
-  wall there in practice (first contact at 1.0–1.8 rad);
-- short arcs deep in the spiral (both ends beyond ~3.9 rad, or ~4.1 rad for mu = 0.18), where
-  ``n_out . x_w`` has fallen below ``mu |t . x_w|``.
-
-The *friction* term is a vector sum projected on ``x_w``: where the wall has turned more than
-90 deg away from ``x_w`` (``t . x_w < 0`` beyond theta ~ 2.7 rad on the default phantom) the
-tangent points back towards the entry and that element's friction *lowers* F. For early arcs
-friction adds to F; for the long arcs at the end of a 15 mm insertion (theta_bot ~ 2,
-theta_tip ~ 3.9) its net effect subtracts. Consequently, in the SPEC model a Stribeck law that
-lowers ``mu`` with speed *raises* the late-insertion (peak) force slightly, the opposite sign of
-the paper's reported simulated −2 %. This is what Eqs. 2–5 give as written;
-:func:`insertion_force` offers ``friction_mode="axial"`` (every element's friction magnitude
-transmitted along ``x_w``, as for a stiff array in a straight sheath) for comparison, never as
-the default.
-
-Magnitude of the speed effect (GUIDE §5)
-----------------------------------------
-Friction is a small share of the normal term on these arcs, so the speed dependence is small.
-With mu_s = 0.18, mu_k = 0.12 and the reconstructed S4 preset, the peak force changes between
-0.5 and 7.5 mm/s by (:func:`speed_change_table`; delta_s = 1 / 2):
-
-    v_s (mm/s)        0.1      0.3          1            3            10
-    SPEC "vector"   +0.0 %   +0.2/+0.1 %  +0.7/+0.9 %  +0.9/+1.1 %  +0.5/+0.5 %
-    "axial"         -0.0 %   -1.1/-0.4 %  -3.5/-4.5 %  -4.4/-5.6 %  -2.7/-2.4 %
-
-i.e. at most ~1 % (and a *rise*) with the SPEC vector sum, a few per cent drop if friction were
-transmitted axially; both an order of magnitude short of the paper's experiments (−24 % at
-3 mm/s, −43 % at 7.5 mm/s). The exact figures depend on the reconstructed pressures.
+With these conventions the force is **positive** (the robot pushes the array in) for realistic
+contact arcs (tests/test_friction.py). The normal term is negative for arcs lying within ~0.8
+rad of ``theta_start``: Eq. (1)'s log branch makes the outer wall first turn *away* from the
+centre there, so its outward normal points against ``x_w`` (``n_out . x_w < 0`` for theta in
+(0.18, 0.95) rad); the array does not touch the outer wall there in practice (first contact at
+1.0–1.8 rad). Such values are reported, not flipped.
 
 Implementation
 --------------
@@ -82,12 +63,10 @@ positions of the tip and the contact start and ``l = S_t - S_b``::
 so each sample costs two binary searches and a few multiplications (:func:`arc_integrals`), and
 a fit that only changes pressures and friction reuses them (:func:`force_from_integrals`). An
 angle is placed on the wall at the outer-wall vertex with the same backbone angle (the wall point
-beside the centreline point, SPEC §3); angles outside the channel are clipped to it.
+beside the centreline point); angles outside the channel are clipped to it.
 
-The paper's TABLE I (scenario definitions) and TABLE II (simulated forces) are not available:
-:data:`SCENARIOS` is a documented *reconstruction*, every number of which is in
-:data:`RECONSTRUCTION`; :func:`fit_table` is ready to fit the unstated constants once TABLE II is
-supplied.
+The paper's scenarios (TABLE I), its simulated forces (TABLE II) and the fit of the constants it
+does not print are in :mod:`pipeline.paper`; :class:`FrictionParams`' defaults are that fit.
 """
 
 from __future__ import annotations
@@ -98,12 +77,13 @@ from typing import Any, Literal, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares
 
 from vision.geometry import DEFAULT_PHANTOM, Phantom, entry_frame
 
 __all__ = [
     "G_N",
+    "FrictionMode",
+    "DEFAULT_FRICTION_MODE",
     "PressureLaw",
     "LinearPressure",
     "PiecewisePressure",
@@ -115,29 +95,18 @@ __all__ = [
     "arc_integrals",
     "force_from_integrals",
     "insertion_force",
-    "Scenario",
-    "RECONSTRUCTION",
-    "reconstructed_friction",
-    "SCENARIOS",
-    "SIM_COLUMNS",
-    "simulate",
-    "peak_force_change",
-    "speed_change_table",
-    "TableFit",
-    "fit_table",
     "flat_params",
     "params_from_flat",
     "FLAT_NAMES",
-    "FrictionMode",
 ]
 
 #: Newtons per gram-force (SPEC §1).
 G_N = 9.80665e-3
 
-#: Columns of the simulation table (SPEC §6), in order; ``step`` is appended.
-SIM_COLUMNS = ("scenario", "speed_mm_s", "theta_bot", "theta_tip", "theta_con", "force_g")
-
 FrictionMode = Literal["vector", "axial"]
+
+#: The friction projection that reproduces the paper's TABLE II (see the module docstring).
+DEFAULT_FRICTION_MODE: FrictionMode = "axial"
 
 
 # --------------------------------------------------------------------------- pressure laws
@@ -207,8 +176,10 @@ class PiecewisePressure:
 class FrictionParams:
     """Parameters of the SPEC §4 force model.
 
-    The defaults are the reconstruction of :data:`RECONSTRUCTION` (S4-like), not values from
-    the paper's tables.
+    The defaults are the seed paper's S4 as fitted to its TABLE II (:func:`pipeline.paper.fit_table_ii`,
+    ``tympani paper``): the quoted coefficients with 0.18 static, the fitted Stribeck constants
+    and contact width, and pressure laws that are the least-squares lines with non-negative
+    coefficients through S4's six steps (:func:`pipeline.paper.paper_params`).
 
     Parameters
     ----------
@@ -233,12 +204,12 @@ class FrictionParams:
 
     mu_s: float = 0.18
     mu_k: float = 0.12
-    v_s_mm_s: float = 1.0
-    delta_s: float = 2.0
+    v_s_mm_s: float = 0.1200
+    delta_s: float = 0.3482
     mu_v_s_per_mm: float = 0.0
-    contact_width_mm: float = 0.3
-    p_tip_MPa: PressureLaw = field(default_factory=lambda: LinearPressure(0.01, 0.01))
-    p_bot_MPa: PressureLaw = field(default_factory=lambda: LinearPressure(0.02, 0.02))
+    contact_width_mm: float = 0.03453
+    p_tip_MPa: PressureLaw = field(default_factory=lambda: LinearPressure(0.0, 0.02386))
+    p_bot_MPa: PressureLaw = field(default_factory=lambda: LinearPressure(0.0, 0.03830))
 
 
 #: Flat names of the scalar parameters (for fits and JSON), with linear pressure laws.
@@ -528,7 +499,7 @@ def force_from_integrals(
     speed_mm_s: np.ndarray | float,
     params: FrictionParams,
     *,
-    friction_mode: FrictionMode = "vector",
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE,
 ) -> np.ndarray:
     """Sensed insertion force (g) from precomputed arc integrals.
 
@@ -574,7 +545,7 @@ def insertion_force(
     params: FrictionParams,
     phantom: Phantom | ContactGeometry = DEFAULT_PHANTOM,
     *,
-    friction_mode: FrictionMode = "vector",
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE,
 ) -> np.ndarray:
     """Sensed insertion force (g) of SPEC §4 for contact arcs and speeds.
 
@@ -609,451 +580,3 @@ def insertion_force(
         np.asarray(theta_bot, dtype=float), np.asarray(theta_tip, dtype=float), np.asarray(speed_mm_s, dtype=float)
     )
     return force_from_integrals(arc_integrals(bot, tip, phantom), v, params, friction_mode=friction_mode)
-
-
-# --------------------------------------------------------------------------- scenarios
-
-#: Every number of the reconstructed TABLE I scenarios, in one place. None of these is from
-#: the paper's TABLE I (not available to us): replace them when it is supplied. The two
-#: friction coefficients 0.12 and 0.18 are the paper's, but which one is static is not stated
-#: (0.18 static is assumed; :func:`fit_table` tests both assignments).
-RECONSTRUCTION: dict[str, float | str] = {
-    "status": "reconstruction — replace with TABLE I values when available",
-    # trajectory of an insertion (rad): tip from first contact to ~15 mm depth; the contact
-    # start follows a fraction `lag` of the tip's advance (as the synthetic renderer's default)
-    "theta_first": 1.4,
-    "theta_tip_end": 3.9,
-    "theta_step": 0.1,
-    "lag": 0.3,
-    # friction
-    "mu_static": 0.18,
-    "mu_kinetic": 0.12,
-    "v_s_mm_s": 1.0,
-    "delta_s": 2.0,
-    "mu_v_s_per_mm": 0.0,
-    "contact_width_mm": 0.3,
-    # pressures (MPa; MPa/rad of theta_con), chosen so the peak force is a few grams
-    "S1_p_MPa": 0.02,
-    "S2_p_tip_MPa": 0.01,
-    "S2_p_bot0_MPa": 0.01,
-    "S2_p_bot1_MPa_per_rad": 0.02,
-    "S3_p_tip0_MPa": 0.01,
-    "S3_p_tip1_MPa_per_rad": 0.01,
-    "S3_p_bot0_MPa": 0.02,
-    "S3_p_bot1_MPa_per_rad": 0.02,
-}
-
-
-def reconstructed_friction(stribeck_law: bool = True) -> FrictionParams:
-    """Friction constants of the reconstruction (pressures are the scenario's).
-
-    Parameters
-    ----------
-    stribeck_law : bool
-        True: Stribeck with ``mu_s = 0.18``, ``mu_k = 0.12`` (S4). False: Coulomb friction,
-        ``mu = mu_k`` at every speed (S1–S3).
-    """
-    r = RECONSTRUCTION
-    mu_k = float(r["mu_kinetic"])
-    return FrictionParams(
-        mu_s=float(r["mu_static"]) if stribeck_law else mu_k,
-        mu_k=mu_k,
-        v_s_mm_s=float(r["v_s_mm_s"]),
-        delta_s=float(r["delta_s"]),
-        mu_v_s_per_mm=float(r["mu_v_s_per_mm"]) if stribeck_law else 0.0,
-        contact_width_mm=float(r["contact_width_mm"]),
-    )
-
-
-@dataclass(frozen=True)
-class Scenario:
-    """A preset insertion: contact arcs step by step, a pressure law and a friction law.
-
-    Parameters
-    ----------
-    name : str
-        ``"S1"`` … ``"S4"``.
-    description : str
-        What the scenario assumes.
-    theta_bot, theta_tip : tuple of float
-        Contact start and tip angles (rad) at each step of the insertion.
-    p_tip_MPa, p_bot_MPa : PressureLaw
-        Pressure laws (MPa as a function of ``theta_con`` in rad).
-    stribeck_law : bool
-        Stribeck friction (True) or Coulomb friction ``mu = mu_k`` (False).
-    source : str
-        Where the numbers come from.
-    """
-
-    name: str
-    description: str
-    theta_bot: tuple[float, ...]
-    theta_tip: tuple[float, ...]
-    p_tip_MPa: PressureLaw
-    p_bot_MPa: PressureLaw
-    stribeck_law: bool
-    source: str = "reconstruction — replace with TABLE I values when available"
-
-    def params(self, friction: FrictionParams | None = None) -> FrictionParams:
-        """The scenario's full parameters.
-
-        Parameters
-        ----------
-        friction : FrictionParams, optional
-            Friction constants and contact width to use (default: the reconstruction's).
-            Without Stribeck friction, ``mu_s`` is set to ``mu_k`` and ``mu_v`` to 0.
-        """
-        base = friction if friction is not None else reconstructed_friction(True)
-        if not self.stribeck_law:
-            base = replace(base, mu_s=base.mu_k, mu_v_s_per_mm=0.0)
-        return replace(base, p_tip_MPa=self.p_tip_MPa, p_bot_MPa=self.p_bot_MPa)
-
-
-def _reconstructed_path() -> tuple[tuple[float, ...], tuple[float, ...]]:
-    r = RECONSTRUCTION
-    first, end, step, lag = (float(r[k]) for k in ("theta_first", "theta_tip_end", "theta_step", "lag"))
-    tip = np.round(np.arange(first, end + 0.5 * step, step), 6)
-    bot = np.round(first + lag * (tip - first), 6)
-    return tuple(float(x) for x in bot), tuple(float(x) for x in tip)
-
-
-def _build_scenarios() -> dict[str, Scenario]:
-    r = RECONSTRUCTION
-    bot, tip = _reconstructed_path()
-    s3_tip = LinearPressure(float(r["S3_p_tip0_MPa"]), float(r["S3_p_tip1_MPa_per_rad"]))
-    s3_bot = LinearPressure(float(r["S3_p_bot0_MPa"]), float(r["S3_p_bot1_MPa_per_rad"]))
-    return {
-        "S1": Scenario("S1", "constant, uniform contact pressure; Coulomb friction", bot, tip,
-                       LinearPressure(float(r["S1_p_MPa"])), LinearPressure(float(r["S1_p_MPa"])), False),
-        "S2": Scenario("S2", "constant pressure at the tip, pressure at the contact start growing linearly "
-                             "with theta_con; Coulomb friction", bot, tip,
-                       LinearPressure(float(r["S2_p_tip_MPa"])),
-                       LinearPressure(float(r["S2_p_bot0_MPa"]), float(r["S2_p_bot1_MPa_per_rad"])), False),
-        "S3": Scenario("S3", "tip and contact-start pressures both growing linearly with theta_con; "
-                             "Coulomb friction", bot, tip, s3_tip, s3_bot, False),
-        "S4": Scenario("S4", "S3's pressures with Stribeck friction (the full model)", bot, tip,
-                       s3_tip, s3_bot, True),
-    }
-
-
-#: The scenarios S1–S4 (a reconstruction of TABLE I; see :data:`RECONSTRUCTION`).
-SCENARIOS: dict[str, Scenario] = _build_scenarios()
-
-
-def _scenario(name: str | Scenario) -> Scenario:
-    if isinstance(name, Scenario):
-        return name
-    try:
-        return SCENARIOS[str(name).upper()]
-    except KeyError:
-        raise KeyError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}") from None
-
-
-def simulate(
-    scenario_name: str | Scenario,
-    speeds_mm_s: Sequence[float],
-    *,
-    friction: FrictionParams | None = None,
-    phantom: Phantom | ContactGeometry = DEFAULT_PHANTOM,
-    friction_mode: FrictionMode = "vector",
-) -> pd.DataFrame:
-    """The force model along a scenario at several speeds (SPEC §6 simulation table).
-
-    Parameters
-    ----------
-    scenario_name : str or Scenario
-        ``"S1"`` … ``"S4"`` or a :class:`Scenario`.
-    speeds_mm_s : sequence of float
-        Insertion speeds (mm/s).
-    friction : FrictionParams, optional
-        Friction constants and contact width (default: the reconstruction's).
-    phantom : Phantom or ContactGeometry
-        Geometry.
-    friction_mode : {"vector", "axial"}
-        See :func:`force_from_integrals`.
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per (step, speed), speed-major: ``scenario, speed_mm_s, theta_bot, theta_tip,
-        theta_con`` (rad), ``force_g`` (g), ``step``.
-    """
-    sc = _scenario(scenario_name)
-    params = sc.params(friction)
-    speeds = np.asarray(list(speeds_mm_s), dtype=float)
-    bot = np.asarray(sc.theta_bot)
-    tip = np.asarray(sc.theta_tip)
-    arcs = arc_integrals(bot, tip, phantom)
-    force = force_from_integrals(
-        ArcIntegrals(arcs.theta_con[None, :], arcs.g0[None], arcs.g1[None], arcs.length_mm[None]),
-        speeds[:, None], params, friction_mode=friction_mode,
-    )
-    n, m = len(speeds), len(bot)
-    return pd.DataFrame(
-        {
-            "scenario": sc.name,
-            "speed_mm_s": np.repeat(speeds, m),
-            "theta_bot": np.tile(bot, n),
-            "theta_tip": np.tile(tip, n),
-            "theta_con": np.tile(tip - bot, n),
-            "force_g": force.ravel(),
-            "step": np.tile(np.arange(m), n),
-        }
-    )
-
-
-def peak_force_change(
-    scenario_name: str | Scenario = "S4",
-    v_ref_mm_s: float = 0.5,
-    v_mm_s: float = 7.5,
-    *,
-    friction: FrictionParams | None = None,
-    phantom: Phantom | ContactGeometry = DEFAULT_PHANTOM,
-    friction_mode: FrictionMode = "vector",
-) -> float:
-    """Relative change (%) of the scenario's peak force from ``v_ref_mm_s`` to ``v_mm_s``.
-
-    Negative means the peak force drops with speed (the paper's experiments: −24 % at 3 mm/s,
-    −43 % at 7.5 mm/s; its simulation −2 %).
-
-    Parameters
-    ----------
-    scenario_name : str or Scenario
-        Scenario (default S4).
-    v_ref_mm_s, v_mm_s : float
-        Reference and compared speeds (mm/s).
-    friction : FrictionParams, optional
-        Friction constants (default: the reconstruction's).
-    phantom : Phantom or ContactGeometry
-        Geometry.
-    friction_mode : {"vector", "axial"}
-        See :func:`force_from_integrals`.
-    """
-    table = simulate(scenario_name, [v_ref_mm_s, v_mm_s], friction=friction, phantom=phantom,
-                     friction_mode=friction_mode)
-    peaks = table.groupby("speed_mm_s")["force_g"].max()
-    return float(100.0 * (peaks[float(v_mm_s)] / peaks[float(v_ref_mm_s)] - 1.0))
-
-
-def speed_change_table(
-    v_s_values: Sequence[float] = (0.1, 0.3, 1.0, 3.0, 10.0),
-    delta_values: Sequence[float] = (1.0, 2.0),
-    *,
-    mu_s: float = 0.18,
-    mu_k: float = 0.12,
-    scenario_name: str = "S4",
-    v_ref_mm_s: float = 0.5,
-    v_mm_s: float = 7.5,
-) -> pd.DataFrame:
-    """Peak-force change (%) between two speeds over a grid of Stribeck constants.
-
-    Parameters
-    ----------
-    v_s_values : sequence of float
-        Stribeck velocities (mm/s).
-    delta_values : sequence of float
-        Stribeck exponents (dimensionless).
-    mu_s, mu_k : float
-        Static and kinetic coefficients (dimensionless).
-    scenario_name : str
-        Scenario whose pressures and path are used.
-    v_ref_mm_s, v_mm_s : float
-        Speeds compared (mm/s).
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``v_s_mm_s, delta_s, change_pct_vector, change_pct_axial``.
-    """
-    rows = []
-    for v_s in v_s_values:
-        for delta in delta_values:
-            fr = replace(reconstructed_friction(True), mu_s=mu_s, mu_k=mu_k, v_s_mm_s=float(v_s), delta_s=float(delta))
-            rows.append(dict(
-                v_s_mm_s=float(v_s), delta_s=float(delta),
-                change_pct_vector=peak_force_change(scenario_name, v_ref_mm_s, v_mm_s, friction=fr),
-                change_pct_axial=peak_force_change(scenario_name, v_ref_mm_s, v_mm_s, friction=fr,
-                                                   friction_mode="axial"),
-            ))
-    return pd.DataFrame(rows)
-
-
-# --------------------------------------------------------------------------- TABLE II fit
-
-
-@dataclass(frozen=True)
-class TableFit:
-    """Constants fitted to a TABLE-II-like table.
-
-    Attributes
-    ----------
-    mu_s, mu_k : float
-        The better assignment of the two given coefficients (dimensionless).
-    params : dict
-        ``{name: (value, stderr)}`` of the fitted constants (units as in FrictionParams).
-    friction : FrictionParams
-        The fitted friction constants (pressures come from the scenarios).
-    residuals : pandas.DataFrame
-        Per cell: ``scenario, speed_mm_s, theta_con, force_g, model_g, residual_g, residual_pct``.
-    rmse_g : float
-        Root-mean-square residual (g).
-    rss_by_assignment : dict
-        Residual sum of squares (g^2) for ``"mu_s>mu_k"`` and ``"mu_s<mu_k"``.
-    warnings : tuple of str
-        Identifiability and bound warnings.
-    """
-
-    mu_s: float
-    mu_k: float
-    params: dict
-    friction: FrictionParams
-    residuals: pd.DataFrame
-    rmse_g: float
-    rss_by_assignment: dict
-    warnings: tuple[str, ...]
-
-
-_TABLE_BOUNDS = {
-    "contact_width_mm": (1e-3, 5.0),
-    "v_s_mm_s": (1e-3, 100.0),
-    "delta_s": (0.2, 6.0),
-    "mu_v_s_per_mm": (0.0, 0.2),
-}
-
-
-def _cell_arcs(table: pd.DataFrame, phantom: Phantom | ContactGeometry) -> tuple[np.ndarray, np.ndarray]:
-    """(theta_bot, theta_tip) per table row: given, or read off the scenario path by theta_con."""
-    if {"theta_bot", "theta_tip"} <= set(table.columns):
-        return table["theta_bot"].to_numpy(float), table["theta_tip"].to_numpy(float)
-    bot = np.empty(len(table))
-    tip = np.empty(len(table))
-    for name, idx in table.groupby("scenario").indices.items():
-        sc = _scenario(name)
-        con = np.asarray(sc.theta_tip) - np.asarray(sc.theta_bot)
-        if np.any(np.diff(con) <= 0):
-            raise ValueError(f"scenario {name}: theta_con must increase along the path to look cells up by it")
-        want = table["theta_con"].to_numpy(float)[idx]
-        bot[idx] = np.interp(want, con, sc.theta_bot)
-        tip[idx] = np.interp(want, con, sc.theta_tip)
-    return bot, tip
-
-
-def fit_table(
-    table: pd.DataFrame,
-    *,
-    mu_pair: tuple[float, float] = (0.12, 0.18),
-    free: Sequence[str] = ("contact_width_mm", "v_s_mm_s", "delta_s"),
-    start: FrictionParams | None = None,
-    starts: int = 6,
-    seed: int = 0,
-    phantom: Phantom | ContactGeometry = DEFAULT_PHANTOM,
-) -> TableFit:
-    """Fit the paper's unstated constants to a TABLE-II-like table.
-
-    For each assignment of ``mu_pair`` to (static, kinetic), bounded least squares (absolute
-    residuals in g, several seeded starts) fits the ``free`` constants with the scenarios'
-    pressure laws held; the assignment with the smaller residual sum of squares is kept.
-    Standard errors: ``sqrt(diag(s^2 (J^T J)^-1))`` with ``s^2 = RSS / (n - k)``.
-
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        ``scenario`` (S1–S4), ``speed_mm_s`` (mm/s), ``theta_con`` (rad), ``force_g`` (g);
-        optional ``theta_bot``/``theta_tip`` (rad), else the cells are placed on the
-        scenario's path by ``theta_con``.
-    mu_pair : tuple of float
-        The two friction coefficients (dimensionless), in either order.
-    free : sequence of str
-        Constants to fit, from ``contact_width_mm`` (mm), ``v_s_mm_s`` (mm/s), ``delta_s``,
-        ``mu_v_s_per_mm`` (s/mm).
-    start : FrictionParams, optional
-        Starting values of the constants (default: the reconstruction's).
-    starts : int
-        Number of starts (the first is ``start``; others are drawn with ``seed``).
-    seed : int
-        Seed of the random starts.
-    phantom : Phantom or ContactGeometry
-        Geometry.
-
-    Returns
-    -------
-    TableFit
-    """
-    needed = {"scenario", "speed_mm_s", "theta_con", "force_g"}
-    missing = needed - set(table.columns)
-    if missing:
-        raise ValueError(f"table lacks column(s): {', '.join(sorted(missing))}")
-    free = tuple(free)
-    bad = set(free) - set(_TABLE_BOUNDS)
-    if bad:
-        raise ValueError(f"cannot fit {', '.join(sorted(bad))} to a table")
-    table = table.reset_index(drop=True)
-    bot, tip = _cell_arcs(table, phantom)
-    arcs = arc_integrals(bot, tip, phantom)
-    speed = table["speed_mm_s"].to_numpy(float)
-    y = table["force_g"].to_numpy(float)
-    groups = table.groupby("scenario").indices
-    base0 = start if start is not None else reconstructed_friction(True)
-    lo = np.array([_TABLE_BOUNDS[n][0] for n in free])
-    hi = np.array([_TABLE_BOUNDS[n][1] for n in free])
-    rng = np.random.default_rng(seed)
-
-    def model(x: np.ndarray, base: FrictionParams) -> np.ndarray:
-        changes: dict[str, Any] = dict(zip(free, map(float, x)))
-        fr = replace(base, **changes)
-        out = np.empty(len(y))
-        for name, idx in groups.items():
-            sub = ArcIntegrals(arcs.theta_con[idx], arcs.g0[idx], arcs.g1[idx], arcs.length_mm[idx])
-            out[idx] = force_from_integrals(sub, speed[idx], _scenario(name).params(fr))
-        return out
-
-    x_first = np.clip([float(getattr(base0, n)) for n in free], lo, hi)
-    # further starts log-uniform within the bounds (lower bounds of 0 raised to 1e-3)
-    log_lo, log_hi = np.log(np.maximum(lo, 1e-3)), np.log(hi)
-    candidates = [x_first] + [np.exp(rng.uniform(log_lo, log_hi)) for _ in range(max(0, starts - 1))]
-    fits = {}
-    for label, (mu_s, mu_k) in {"mu_s>mu_k": (max(mu_pair), min(mu_pair)),
-                                "mu_s<mu_k": (min(mu_pair), max(mu_pair))}.items():
-        base = replace(base0, mu_s=float(mu_s), mu_k=float(mu_k))
-        best = None
-        for x0 in candidates:
-            res = least_squares(lambda x: model(x, base) - y, np.clip(x0, lo, hi), bounds=(lo, hi), x_scale="jac")
-            if best is None or res.cost < best.cost:
-                best = res
-        assert best is not None  # candidates always holds x_first
-        fits[label] = (base, best)
-    label = min(fits, key=lambda k: fits[k][1].cost)
-    base, res = fits[label]
-    n, k = len(y), len(free)
-    rss = 2.0 * float(res.cost)
-    s2 = rss / max(n - k, 1)
-    jac = np.asarray(res.jac, dtype=float)
-    cov = s2 * np.linalg.pinv(jac.T @ jac)
-    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    warnings = []
-    for name, value, low, high in zip(free, res.x, lo, hi):
-        if np.isclose(value, low, rtol=1e-6) or np.isclose(value, high, rtol=1e-6):
-            warnings.append(f"{name} is at its bound {value:.4g}: its standard error is not meaningful")
-    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    corr = cov / np.outer(sd, sd)
-    for i in range(k):
-        for j in range(i + 1, k):
-            if abs(corr[i, j]) > 0.95:
-                warnings.append(f"{free[i]} and {free[j]} are not separable by this table (corr {corr[i, j]:+.3f})")
-    rss_all = {lab: 2.0 * float(r.cost) for lab, (_, r) in fits.items()}
-    if min(rss_all.values()) > 0 and max(rss_all.values()) / min(rss_all.values()) < 1.05:
-        warnings.append("the two mu assignments fit almost equally well (RSS within 5 %): static/kinetic not identified")
-    fitted_values: dict[str, Any] = dict(zip(free, map(float, res.x)))
-    fitted = replace(base, **fitted_values)
-    pred = model(res.x, base)
-    residuals = table[["scenario", "speed_mm_s", "theta_con", "force_g"]].copy()
-    residuals["model_g"] = pred
-    residuals["residual_g"] = y - pred
-    with np.errstate(divide="ignore", invalid="ignore"):
-        residuals["residual_pct"] = np.where(pred != 0, 100.0 * (y - pred) / pred, np.nan)
-    return TableFit(
-        mu_s=float(base.mu_s), mu_k=float(base.mu_k),
-        params={name: (float(v), float(e)) for name, v, e in zip(free, res.x, se)},
-        friction=fitted, residuals=residuals, rmse_g=float(np.sqrt(rss / n)),
-        rss_by_assignment=rss_all, warnings=tuple(warnings),
-    )

@@ -18,13 +18,13 @@ under a millisecond.
 What is identified, and what is not
 -----------------------------------
 - **Contact width × pressure is exactly degenerate**: the force depends on ``b_c · p`` only.
-  By default ``contact_width_mm`` is held (0.3 mm) and the fitted pressures are *effective*
-  pressures for that width; only the products ``b_c · p`` are physical. ``contact_width_mm``
+  By default ``contact_width_mm`` is held (0.03453 mm, the width fitted to the paper's TABLE II)
+  and the fitted pressures are *effective* pressures for that width; only the products ``b_c · p`` are physical. ``contact_width_mm``
   can be freed only when every pressure coefficient is held.
 - The friction law is seen only through ``mu(v)`` at the distinct speeds of the data, so at
   most that many speed-law constants (``mu_s, mu_k, v_s_mm_s, delta_s, mu_v_s_per_mm``) can
   be free; extra ones are held with a warning (``delta_s`` first, then ``mu_v_s_per_mm``,
-  ``v_s_mm_s``, ``mu_s``). By default ``delta_s = 2`` and ``mu_v = 0`` are held.
+  ``v_s_mm_s``, ``mu_s``). By default ``delta_s`` (0.348, TABLE II's) and ``mu_v = 0`` are held.
 - The friction term is a small share of the force on realistic arcs (see
   :mod:`pipeline.friction`), so ``mu`` values carry much larger relative uncertainties than
   pressures. Pairs with ``|corr| > 0.95``, parameters at a bound, a nearly singular Jacobian
@@ -80,6 +80,7 @@ from .friction import (
     FLAT_NAMES,
     G_N,
     ArcIntegrals,
+    DEFAULT_FRICTION_MODE,
     ContactGeometry,
     FrictionMode,
     FrictionParams,
@@ -170,7 +171,8 @@ class FitOptions:
     min_rows : int
         Fewest usable rows accepted.
     friction_mode : {"vector", "axial"}
-        Model variant (:func:`pipeline.friction.force_from_integrals`); SPEC is "vector".
+        Model variant (:func:`pipeline.friction.force_from_integrals`); "axial" (default) reproduces the
+        paper's TABLE II.
     moving_only : bool
         Fit only rows where the robot moves, when the table has ``depth_mm`` (see
         :func:`validate_synced`).
@@ -183,7 +185,7 @@ class FitOptions:
     seed: int = 0
     se: SeMethod = "auto"
     min_rows: int = 20
-    friction_mode: FrictionMode = "vector"
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE
     moving_only: bool = True
 
 
@@ -288,7 +290,7 @@ class FitResult:
     warnings: tuple[str, ...]
     starts: pd.DataFrame
     residuals: pd.DataFrame
-    friction_mode: str = "vector"
+    friction_mode: str = DEFAULT_FRICTION_MODE
 
     def predict(self, table: pd.DataFrame, phantom: Phantom = DEFAULT_PHANTOM) -> np.ndarray:
         """Model force (g) for the rows of a synced-like table (``theta_bot, theta_tip`` in
@@ -952,7 +954,7 @@ def synthetic_synced(
     ar_rho: float = 0.0,
     angle_noise_rad: float = 0.0,
     phantom: Phantom = DEFAULT_PHANTOM,
-    friction_mode: FrictionMode = "vector",
+    friction_mode: FrictionMode = DEFAULT_FRICTION_MODE,
 ) -> pd.DataFrame:
     """A synced table generated from known parameters (for tests and demos).
 

@@ -331,7 +331,7 @@ def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previou
 def _simulated(scenario: str | None) -> Callable | None:
     if scenario is None or str(scenario).lower() == "none":
         return None
-    from pipeline.friction import SCENARIOS, simulate
+    from pipeline.paper import SCENARIOS, simulate
 
     name = str(scenario).upper()
     if name not in SCENARIOS:

@@ -129,7 +129,7 @@ def _simulated(args: argparse.Namespace):
     if str(args.scenario).lower() == "none":
         return None
     try:
-        from pipeline.friction import SCENARIOS, simulate
+        from pipeline.paper import SCENARIOS, simulate
     except ImportError:  # pragma: no cover - the model is part of the package
         return None
     name = str(args.scenario).upper()

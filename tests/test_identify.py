@@ -29,7 +29,8 @@ from vision.errors import InputError
 TRUTH = FrictionParams(mu_s=0.18, mu_k=0.12, v_s_mm_s=3.0, delta_s=2.0, mu_v_s_per_mm=0.0, contact_width_mm=0.3,
                        p_tip_MPa=LinearPressure(0.01, 0.01), p_bot_MPa=LinearPressure(0.02, 0.02))
 #: first start away from the truth
-START = FrictionParams(mu_s=0.3, mu_k=0.2, v_s_mm_s=1.0, p_tip_MPa=LinearPressure(0.03), p_bot_MPa=LinearPressure(0.03))
+START = FrictionParams(mu_s=0.3, mu_k=0.2, v_s_mm_s=1.0, delta_s=2.0, contact_width_mm=0.3,
+                       p_tip_MPa=LinearPressure(0.03), p_bot_MPa=LinearPressure(0.03))
 
 
 def _z(estimate, true: float) -> float:
@@ -121,7 +122,8 @@ def test_autocorrelated_noise_inflates_honest_errors():
         assert abs(_z(est, truth[name])) < 3.0
 
 
-def test_analytic_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("mode", ["axial", "vector"])
+def test_analytic_jacobian_matches_finite_differences(mode):
     rng = np.random.default_rng(13)
     table = synthetic_synced(TRUTH, rng=rng, trials=1, samples_per_trial=40)
     arcs = arc_integrals(table["theta_bot"].to_numpy(), table["theta_tip"].to_numpy())
@@ -129,14 +131,14 @@ def test_analytic_jacobian_matches_finite_differences():
     base = flat_params(FrictionParams(v_s_mm_s=2.0, delta_s=1.5, mu_v_s_per_mm=0.01))
     names = list(FLAT_NAMES)
     x = np.array([base[n] for n in names])
-    jac = _model_jacobian(_build(x, names, base, False), names, arcs, speed, "vector", False)
+    jac = _model_jacobian(_build(x, names, base, False), names, arcs, speed, mode, False)
     for i, name in enumerate(names):
         h = 1e-6 * max(abs(x[i]), 1e-4)
         up, down = x.copy(), x.copy()
         up[i] += h
         down[i] -= h
-        fd = (force_from_integrals(arcs, speed, _build(up, names, base, False))
-              - force_from_integrals(arcs, speed, _build(down, names, base, False))) / (2 * h)
+        fd = (force_from_integrals(arcs, speed, _build(up, names, base, False), friction_mode=mode)
+              - force_from_integrals(arcs, speed, _build(down, names, base, False), friction_mode=mode)) / (2 * h)
         np.testing.assert_allclose(jac[:, i], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max(), err_msg=name)
 
 
@@ -165,7 +167,7 @@ def test_unidentified_parameter_gets_infinite_error():
     rng = np.random.default_rng(20)
     table = synthetic_synced(TRUTH, rng=rng, trials=1, samples_per_trial=60)
     free = ("p_tip0_MPa", "p_tip1_MPa_per_rad", "p_bot0_MPa", "p_bot1_MPa_per_rad", "mu_s", "mu_k")
-    fit = fit_synced(table, FitOptions(free=free, fixed={"v_s_mm_s": 0.01}, starts=2))
+    fit = fit_synced(table, FitOptions(free=free, fixed={"v_s_mm_s": 0.01, "delta_s": 2.0}, starts=2))
     assert math.isinf(fit.params["mu_s"].stderr) and math.isfinite(fit.params["mu_k"].stderr)
     assert any("mu_s is not identified" in w for w in fit.warnings)
     doc = json.loads(json.dumps(fit_to_json(fit)))  # inf/NaN become null: still valid JSON
@@ -250,7 +252,7 @@ def _one_line(err: str) -> str:
 
 def test_cli_simulate_prints_and_writes(capsys, tmp_path):
     code, out, err = _run(capsys, "simulate", "--scenario", "S4", "--speeds", "0.5,3,7.5")
-    assert code == 0 and "reconstruction" in out and "F@7.5mm/s_g" in out
+    assert code == 0 and "TABLE I" in out and "F@7.5mm/s_g" in out
     target = tmp_path / "sim.csv"
     code, out, err = _run(capsys, "simulate", "--scenario", "s2", "--speeds", "0.5,7.5", "--out", target)
     assert code == 0 and target.exists()
