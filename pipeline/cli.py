@@ -442,7 +442,15 @@ def _run_demo(args: argparse.Namespace) -> int:
     print("\nangles against the renderer's truth (|error|, rad):")
     print(err.to_string(index=False, float_format=lambda v: f"{v:.4f}"))
     print(f"\npooled median |error|: theta_tip {err.tip_median.median():.4f} rad, "
-          f"theta_bot {err.bot_median.median():.4f} rad; outputs in {result['out']}/; report {result['report']}")
+          f"theta_bot {err.bot_median.median():.4f} rad")
+    drops = result["drops"]
+    if drops is not None:
+        print("\npeak force against the slowest speed (mean of the trials' peaks):")
+        for r in drops.itertuples():
+            paper = "" if r.paper_pct != r.paper_pct else f"; the paper's experiments {r.paper_pct:+.0f} %"
+            print(f"  {r.speed_mm_s:g} mm/s: {r.peak_force_g:.3f} g, {r.change_pct:+.1f} %{paper}; "
+                  f"the paper's model (S4) {r.model_pct:+.1f} %")
+    print(f"outputs in {result['out']}/; report {result['report']}")
     print(f"demo: {time.perf_counter() - t0:.0f} s")
     return result["run"].exit_status
 
@@ -473,7 +481,9 @@ COMMANDS: dict[str, Command] = {
         _run_demo,
         "Render 3 speeds x 2 trials of short synthetic insertion videos with force logs and exact truth, run "
         "'tympani run' on them (extract, sync, fit, bounds, diagnose, report.html) and compare the angles with the "
-        "truth. A rerun reuses what is already there.",
+        "truth. The force falls with speed as in the seed paper's experiments (-24 % at 3 mm/s, -43 % at 7.5 mm/s) "
+        "through an effect hidden from the analysis; the demo prints the measured drops beside the paper's. A rerun "
+        "reuses what is already there.",
     ),
     "render": Command(
         "a synthetic experiment: videos, force logs, manifest, ground truth",

@@ -11,8 +11,8 @@ grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is writ
     OUT/truth/pose.json        the camera pose (SPEC registration keys) and the render settings
     OUT/truth/effect.json      the hidden effect (or null) and its noiseless gap vs the noise
 
-The force is the SPEC §4 model (:mod:`pipeline.friction`, scenario S4 of the reconstruction)
-on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
+The force is the model of :mod:`pipeline.friction` with the paper's S4 constants as fitted to
+its TABLE II (:func:`pipeline.paper.paper_params`) on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
 ``video_t0_s`` on the force log's clock.
 
 With ``ExperimentConfig.effect`` set, a hidden unmodelled effect (SPEC §5) is applied to the
@@ -103,6 +103,12 @@ class ExperimentConfig:
         Hidden effect (SPEC §5 name) applied to the force logs, or None.
     strength : float
         Size of the hidden effect (0 absent, 1 typical; see :mod:`pipeline.synthetic`).
+    effect_params : tuple of (str, float) pairs
+        Effect parameters that replace the drawn ones (units in the names), e.g. the lift
+        calibrated to the paper's speed drop (:data:`pipeline.synthetic.PAPER_LIFT`).
+    paired : bool
+        Repeat ``k`` at every speed shares its contact growth (a paired design: the change of
+        force between speeds is then not blurred by which placements each speed drew).
     """
 
     speeds_mm_s: tuple[float, ...] = (0.5, 1.5, 3.0, 5.0, 7.5)
@@ -118,6 +124,8 @@ class ExperimentConfig:
     dwell_s: float = 0.0
     effect: str | None = None
     strength: float = 1.0
+    effect_params: tuple[tuple[str, float], ...] = ()
+    paired: bool = False
 
 
 def random_policy(rng: np.random.Generator) -> ContactPolicy:
@@ -279,14 +287,16 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     if effect is not None:
         from .synthetic import draw_effect_params
 
-        values = draw_effect_params(effect, effect_rng, cfg.strength)
+        values = draw_effect_params(effect, effect_rng, cfg.strength, dict(cfg.effect_params))
+    shared = [random_policy(rng) for _ in range(cfg.trials)] if cfg.paired else None
     rows, cleans, logs = [], [], []
     for speed in cfg.speeds_mm_s:
         for k in range(cfg.trials):
             trial = _trial_name(speed, k)
             spec = VideoSpec(
                 pose=pose, width=cfg.width, height=cfg.height, fps=cfg.fps, speed_mm_s=speed,
-                start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, dwell_s=cfg.dwell_s, policy=random_policy(rng),
+                start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, dwell_s=cfg.dwell_s,
+                policy=shared[k] if shared is not None else random_policy(rng),
                 appearance=look, nuisance=random_nuisance(rng, cfg.nuisance), max_frames=cfg.max_frames,
             )
             name = Path("videos") / (trial if cfg.png else f"{trial}.mp4")

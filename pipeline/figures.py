@@ -2,9 +2,13 @@
 
 - :func:`plot_force_vs_theta_con`: measured force against θ_con, one panel per speed, with the
   simulated force overlaid (Figs. 9–11);
-- :func:`plot_log_force`: ln F against θ_con, all speeds, with the Eq. (8) lines (Fig. 12);
-- :func:`plot_bounds`: per speed, the samples, the Eq. (9) curve, its 95 % confidence band and
-  the 95 % prediction band (the safety boundary) (Figs. 13–15).
+- :func:`plot_log_force`: ln F against the angle, all speeds, with the Eq. (8) lines
+  ``ln F = c1 θ + c2`` (Fig. 12);
+- :func:`plot_bounds`: per speed, the samples, the Eq. (9) curve with its 95 % prediction band
+  (the paper's safety boundary) and the recommended bound with its band, each labelled with its
+  held-out coverage (Figs. 13–15).
+
+The angle is θ_con, or θ_tip when the bounds were fitted against the tip angle.
 
 Every function builds its own figure with ``plt.subplots``, saves it and closes it: no pyplot
 state is left behind, and the Agg backend is selected before pyplot is imported (no display
@@ -85,17 +89,24 @@ def _save(fig, path: str | os.PathLike) -> Path:
     return out
 
 
-def plot_force_vs_theta_con(synced: pd.DataFrame, path: str | os.PathLike, *, simulated: Simulated = None) -> Path:
-    """Measured force against θ_con per speed, with the simulation overlaid (Figs. 9–11).
+def _angle_label(angle: str) -> str:
+    return "θ_con" if angle == "theta_con" else "θ_tip"
+
+
+def plot_force_vs_theta_con(synced: pd.DataFrame, path: str | os.PathLike, *, simulated: Simulated = None,
+                            angle: str = "theta_con") -> Path:
+    """Measured force against the angle per speed, with the simulation overlaid (Figs. 9–11).
 
     Parameters
     ----------
     synced : DataFrame
-        Synced table: ``speed_mm_s`` (mm/s), ``theta_con`` (rad), ``force_g`` (g), ``trial``.
+        Synced table: ``speed_mm_s`` (mm/s), the angle (rad), ``force_g`` (g), ``trial``.
     path : str or PathLike
         PNG to write.
     simulated : DataFrame or callable, optional
-        Simulated forces (see :data:`Simulated`); drawn as a line per speed.
+        Simulated forces (see :data:`Simulated`); drawn as a line per speed (against θ_con only).
+    angle : {"theta_con", "theta_tip"}
+        The angle on the x axis.
 
     Returns
     -------
@@ -107,33 +118,33 @@ def plot_force_vs_theta_con(synced: pd.DataFrame, path: str | os.PathLike, *, si
     fig, axes = _panels(len(speeds), sharey=True)
     for ax, v in zip(axes, speeds):
         part = _at_speed(synced, v)
-        part = part[np.isfinite(part["theta_con"]) & np.isfinite(part["force_g"])]
+        part = part[np.isfinite(part[angle]) & np.isfinite(part["force_g"])]
         for _, trial in part.groupby("trial", sort=True) if "trial" in part.columns else [(None, part)]:
             t = _thin(trial)
-            ax.plot(t["theta_con"], t["force_g"], ".", ms=1.5, alpha=0.35, color="tab:blue")
+            ax.plot(t[angle], t["force_g"], ".", ms=1.5, alpha=0.35, color="tab:blue")
         ax.plot([], [], ".", color="tab:blue", label=f"measured ({part['trial'].nunique() if 'trial' in part else 1} trials)")
-        if sim is not None:
+        if sim is not None and angle == "theta_con":
             s = _at_speed(sim, v).sort_values("theta_con")
             if len(s):
                 label = f"simulated ({s['scenario'].iloc[0]})" if "scenario" in s.columns else "simulated"
                 ax.plot(s["theta_con"], s["force_g"], "-", color="tab:red", lw=2, label=label)
         ax.set_title(f"{v:g} mm/s")
-        ax.set_xlabel("θ_con (rad)")
+        ax.set_xlabel(f"{_angle_label(angle)} (rad)")
         ax.set_ylabel("force (g)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
-    fig.suptitle("Insertion force against contact angle")
+    fig.suptitle("Insertion force against " + ("contact angle" if angle == "theta_con" else "tip angle"))
     return _save(fig, path)
 
 
 def plot_log_force(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.PathLike) -> Path:
-    """ln F against θ_con for all speeds with the Eq. (8) lines (Fig. 12).
+    """ln F against the angle for all speeds with the Eq. (8) lines (Fig. 12).
 
     Parameters
     ----------
     synced : DataFrame
-        Synced table (``speed_mm_s`` mm/s, ``theta_con`` rad, ``force_g`` g); only samples
-        with F > 0 and θ_con > 0 are drawn.
+        Synced table (``speed_mm_s`` mm/s, the fits' angle in rad, ``force_g`` g); only samples
+        with F > 0 and a positive angle are drawn.
     fits : sequence of SpeedFit
         Eq. (8) fits (:func:`pipeline.bounds.fit_bounds`).
     path : str or PathLike
@@ -143,6 +154,8 @@ def plot_log_force(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | o
     -------
     Path
     """
+    angle = fits[0].angle if fits else "theta_con"
+    sym = _angle_label(angle)
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     cmap = plt.get_cmap("viridis")
     speeds = _speeds(synced)
@@ -150,33 +163,37 @@ def plot_log_force(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | o
     for i, v in enumerate(speeds):
         color = cmap(0.85 * i / max(len(speeds) - 1, 1))  # stop short of viridis' pale yellow
         part = _at_speed(synced, v)
-        part = _thin(part[(part["theta_con"] > 0) & (part["force_g"] > 0)])
-        ax.plot(part["theta_con"], np.log(part["force_g"]), ".", ms=1.5, alpha=0.25, color=color)
+        part = _thin(part[(part[angle] > 0) & (part["force_g"] > 0)])
+        ax.plot(part[angle], np.log(part["force_g"]), ".", ms=1.5, alpha=0.25, color=color)
         fit = by_speed.get(round(v, 9))
         if fit is not None:
-            th = np.linspace(fit.theta_con_min, fit.theta_con_max, 50)
-            ax.plot(th, fit.c1 + fit.c2 * th, "-", lw=2, color=color,
-                    label=f"{v:g} mm/s: ln F = {fit.c1:.2f} + {fit.c2:.2f} θ_con")
-    ax.set_xlabel("θ_con (rad)")
+            th = np.linspace(fit.theta_min, fit.theta_max, 50)
+            ax.plot(th, fit.c1 * th + fit.c2, "-", lw=2, color=color,
+                    label=f"{v:g} mm/s: ln F = {fit.c1:.2f}·{sym} {'+' if fit.c2 >= 0 else '−'} {abs(fit.c2):.2f}")
+    ax.set_xlabel(f"{sym} (rad)")
     ax.set_ylabel("ln F (F in g)")
-    ax.set_title("Eq. (8): log force against contact angle")
+    ax.set_title(f"Eq. (8): ln F = c1·{sym} + c2")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     return _save(fig, path)
 
 
-def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.PathLike) -> Path:
-    """Per speed: samples, Eq. (9) curve, 95 % confidence band and prediction band (Figs. 13–15).
+def _pct(value: float | None) -> str:
+    return "n/a" if value is None else f"{100 * value:.0f} %"
 
-    The prediction band (light) is the safety boundary: where one force sample of a new
-    insertion is expected; the confidence band (dark) is where the median curve lies.
+
+def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.PathLike) -> Path:
+    """Per speed: samples, Eq. (9) with its prediction band, and the recommended bound (Figs. 13–15).
+
+    Each band is labelled with its held-out coverage: the share of samples of trials left out
+    of its fit that fell inside it (a 95 % band that holds covers about 95 %).
 
     Parameters
     ----------
     synced : DataFrame
-        Synced table (``speed_mm_s`` mm/s, ``theta_con`` rad, ``force_g`` g).
+        Synced table (``speed_mm_s`` mm/s, the fits' angle in rad, ``force_g`` g).
     fits : sequence of SpeedFit
-        Eq. (8) fits.
+        Fits from :func:`pipeline.bounds.fit_bounds`.
     path : str or PathLike
         PNG to write.
 
@@ -184,36 +201,49 @@ def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.P
     -------
     Path
     """
-    fig, axes = _panels(max(len(fits), 1), sharey=True)
+    fig, axes = _panels(max(len(fits), 1), sharey=False)
     if not fits:
         axes[0].text(0.5, 0.5, "no speed could be fitted", ha="center", va="center", transform=axes[0].transAxes)
     for ax, fit in zip(axes, fits):
+        sym = _angle_label(fit.angle)
         part = _at_speed(synced, fit.speed_mm_s)
-        part = _thin(part[(part["theta_con"] > 0) & np.isfinite(part["force_g"])])
-        ax.plot(part["theta_con"], part["force_g"], ".", ms=1.5, alpha=0.3, color="0.4", label="samples")
-        b = bands(fit, np.linspace(fit.theta_con_min, fit.theta_con_max, 101))
-        pct = f"{100 * fit.level:g}%"
-        ax.fill_between(b["theta_con"], b["pi_lo_g"], b["pi_hi_g"], color="tab:orange", alpha=0.25,
-                        label=f"{pct} prediction (safety bound)")
-        ax.fill_between(b["theta_con"], b["ci_lo_g"], b["ci_hi_g"], color="tab:blue", alpha=0.45,
-                        label=f"{pct} confidence (curve)")
-        ax.plot(b["theta_con"], b["f_fit_g"], "-", color="tab:blue", lw=1.5, label="exp(c1 + c2 θ_con)")
-        ax.set_title(f"{fit.speed_mm_s:g} mm/s (n={fit.n}, {fit.n_trials} trials, SE: {fit.se_method})", fontsize=9)
-        ax.set_xlabel("θ_con (rad)")
+        part = _thin(part[(part[fit.angle] > 0) & np.isfinite(part["force_g"])])
+        ax.plot(part[fit.angle], part["force_g"], ".", ms=1.5, alpha=0.3, color="0.45", label="samples")
+        b = bands(fit, np.linspace(fit.theta_min, fit.theta_max, 101))
+        pct = f"{100 * fit.level:g} %"
+        ax.fill_between(b[fit.angle], b["pi_lo_g"], b["pi_hi_g"], color="tab:orange", alpha=0.22,
+                        label=f"Eq. (9) {pct} band (held-out {_pct(fit.heldout_coverage_eq9)})")
+        ax.plot(b[fit.angle], b["f_fit_g"], "--", color="tab:orange", lw=1.2, label=f"exp(c1·{sym} + c2)")
+        ax.plot(b[fit.angle], b["rec_lo_g"], "-", color="tab:blue", lw=1.3)
+        ax.plot(b[fit.angle], b["rec_hi_g"], "-", color="tab:blue", lw=1.8,
+                label=f"recommended: {fit.recommended.form} (held-out {_pct(fit.heldout_coverage)})")
+        ax.plot(b[fit.angle], b["rec_fit_g"], ":", color="tab:blue", lw=1.2)
+        top = 1.25 * max(float(np.nanmax(part["force_g"])) if len(part) else 0.0, float(b["rec_hi_g"].max()), 1e-3)
+        ax.set_ylim(0.0, top)
+        eq9_top = float(b["pi_hi_g"].max())
+        if eq9_top > top:
+            ax.text(0.98, 0.03, f"Eq. (9) band reaches {eq9_top:.3g} g (off scale)", transform=ax.transAxes,
+                    ha="right", va="bottom", fontsize=7, color="tab:red")
+        ax.set_title(f"{fit.speed_mm_s:g} mm/s ({fit.n_trials} trials, n={fit.n})", fontsize=9)
+        ax.set_xlabel(f"{sym} (rad)")
         ax.set_ylabel("force (g)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle("Eq. (9) fits with 95 % bands")
+        ax.legend(fontsize=6.5, loc="upper left")
+    fig.suptitle("Safety bounds: Eq. (9) and the recommended bound, 95 % prediction bands")
     return _save(fig, path)
 
 
 def write_figures(
     synced: pd.DataFrame, fits: Sequence[SpeedFit], out_dir: str | os.PathLike, *, simulated: Simulated = None
 ) -> list[Path]:
-    """Write ``force_vs_theta_con.png``, ``log_force.png`` and ``bounds.png`` to ``out_dir``."""
+    """Write ``force_vs_theta_con.png``, ``log_force.png`` and ``bounds.png`` to ``out_dir``.
+
+    The first is drawn against the fits' angle (θ_con, or θ_tip for tip-only data; its name stays).
+    """
     out = Path(out_dir)
+    angle = fits[0].angle if fits else "theta_con"
     return [
-        plot_force_vs_theta_con(synced, out / "force_vs_theta_con.png", simulated=simulated),
+        plot_force_vs_theta_con(synced, out / "force_vs_theta_con.png", simulated=simulated, angle=angle),
         plot_log_force(synced, fits, out / "log_force.png"),
         plot_bounds(synced, fits, out / "bounds.png"),
     ]

@@ -340,7 +340,7 @@ def _simulated(scenario: str | None) -> Callable | None:
 
 
 def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from pipeline.bounds import fit_bounds, read_synced, write_bounds
+    from pipeline.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
     from pipeline.figures import write_figures
 
     bdir = out / "bounds"
@@ -361,6 +361,10 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
         names = [p.name for p in write_figures(synced, fits, bdir, simulated=_simulated(cfg.scenario))]
         write_bounds(fits, skipped, bdir, cfg=cfg.bounds, input_path=synced_path, figures=names)
         rec.message = f"{len(fits)} speed(s) fitted" + (f", {len(skipped)} skipped" if skipped else "")
+        single = single_trial_speeds(fits)
+        if single:
+            rec.message += ("; held-out coverage undefined at " + ", ".join(f"{v:g}" for v in single)
+                            + " mm/s (one trial each)")
 
     _timed(rec, work)
     rec.status = "ok"

@@ -37,11 +37,16 @@ SYNC_DESCRIPTION = (
 )
 BOUNDS_HELP = "Eq. (8)-(9) fits with 95%% bounds per speed"  # argparse %-formats help
 BOUNDS_DESCRIPTION = (
-    "Per speed, fit ln F = c1 + c2 theta_con (Eq. 8) by OLS on samples with F > 0 and theta_con > 0, with "
-    "cluster-robust (by trial) standard errors when a speed has >= 5 trials, else autocorrelation-corrected "
-    "ones (--se). Writes bounds.json (by_speed: c1, c2, c1_se, c2_se, n, n_excluded, ...), bounds_bands.csv "
-    "(Eq. 9 curve with its 95% confidence band and the 95% prediction band, the safety boundary) and the "
-    "figures force_vs_theta_con.png (with the simulated force), log_force.png and bounds.png to --out."
+    "Per speed, fit Eq. (8) of the seed paper, ln F = c1 theta + c2 (c1 the slope in 1/rad, c2 the intercept), "
+    "by OLS on samples with F > 0 and theta > 0; theta is theta_con, or theta_tip with --angle theta_tip (for "
+    "trackers that give the tip angle only). Standard errors are cluster-robust (by trial) when a speed has >= 5 "
+    "trials, else autocorrelation-corrected (--se). Beside Eq. (9)'s band, a recommended bound is chosen among "
+    "low-order forms of ln F by its coverage of left-out trials (leave one trial out; within 95 +- 3 %, then the "
+    "narrowest), and a lack-of-fit test says whether ln F is a straight line in theta. Writes bounds.json "
+    "(by_speed: c1, c2, their errors, heldout_coverage, heldout_coverage_eq9, the recommended form, the "
+    "lack-of-fit test, ...), bounds_bands.csv and the figures force_vs_theta_con.png (with the simulated force), "
+    "log_force.png and bounds.png to --out. A speed with a single trial is fitted but its coverage cannot be "
+    "measured: the outputs are written and the command exits 2, naming the speed."
 )
 
 
@@ -98,6 +103,8 @@ def configure_bounds(p: argparse.ArgumentParser) -> None:
     p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, from 'tympani sync')")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--level", type=fraction, default=0.95, help="band coverage (default 0.95)")
+    p.add_argument("--angle", choices=("theta_con", "theta_tip"), default="theta_con",
+                   help="the angle of Eq. (8) (default theta_con; theta_tip for tip-only angle tracks)")
     p.add_argument("--se", choices=("auto", "cluster", "effective_n", "ols"), default="auto",
                    help="standard errors: cluster-robust by trial, autocorrelation-corrected (effective_n), plain "
                         "OLS, or auto (cluster with >= 5 trials per speed, else effective_n; default)")
@@ -142,16 +149,19 @@ def _simulated(args: argparse.Namespace):
 
 def run_bounds(args: argparse.Namespace) -> int:
     """Run ``tympani bounds``; 0 on success, 2 on bad input (no speed could be fitted)."""
-    from pipeline.bounds import BoundsConfig, fit_bounds, read_synced, write_bounds
+    from pipeline.bounds import BoundsConfig, fit_bounds, read_synced, single_trial_speeds, write_bounds
     from vision.errors import InputError
 
-    cfg = BoundsConfig(level=args.level, se=args.se)
+    cfg = BoundsConfig(level=args.level, se=args.se, angle=args.angle)
     synced = read_synced(args.synced)
-    fits, skipped = fit_bounds(synced, cfg)
+    try:
+        fits, skipped = fit_bounds(synced, cfg)
+    except InputError as exc:
+        raise InputError(args.synced, exc.problem) from None
     if not fits:
         reasons = "; ".join(f"{s['speed_mm_s']:g} mm/s: {s['reason']}" for s in skipped)
         raise InputError(args.synced, f"no speed could be fitted ({reasons})")
-    simulated = None if args.no_figures else _simulated(args)
+    simulated = None if args.no_figures or args.angle != "theta_con" else _simulated(args)
     figures = []
     if not args.no_figures:
         from pipeline.figures import write_figures
@@ -162,8 +172,16 @@ def run_bounds(args: argparse.Namespace) -> int:
           + f" -> {paths['json']}, {paths['bands'].name}" + (f", {', '.join(figures)}" if figures else ""))
     if not args.quiet:
         for f in fits:
-            print(f"  {f.speed_mm_s:g} mm/s: ln F = {f.c1:.3f} (±{f.c1_se:.2g}) + {f.c2:.3f} (±{f.c2_se:.2g}) "
-                  f"theta_con; n={f.n}, excluded {f.n_excluded}, {f.n_trials} trial(s), SE {f.se_method}")
+            cov = ("coverage undefined" if f.heldout_coverage is None else
+                   f"held-out coverage {100 * f.heldout_coverage:.1f} % ({f.recommended.form}), "
+                   f"Eq. (9) {100 * f.heldout_coverage_eq9:.1f} %" if f.heldout_coverage_eq9 is not None else "")
+            lof = "" if f.lack_of_fit is None else f"; {f.lack_of_fit.words()}"
+            print(f"  {f.speed_mm_s:g} mm/s: ln F = {f.c1:.3f} (±{f.c1_se:.2g}) {args.angle} + {f.c2:.3f} "
+                  f"(±{f.c2_se:.2g}); n={f.n}, {f.n_trials} trial(s); {cov}{lof}")
         for s in skipped:
             print(f"  {s['speed_mm_s']:g} mm/s skipped: {s['reason']}")
+    single = single_trial_speeds(fits)
+    if single:
+        raise InputError(args.synced, "held-out coverage is undefined at " + ", ".join(f"{v:g}" for v in single)
+                         + " mm/s (one trial each; bounds written without it)")
     return 0
