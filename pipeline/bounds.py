@@ -35,9 +35,12 @@ this matters, per speed:
 The recommended bound
 ---------------------
 Beside Eq. (9), tympani fits a small family of well-founded forms in log space: ln F a
-polynomial of degree 1, 2 or 3 in θ, each with a constant residual spread or one that changes
-log-linearly with θ (the relative noise of a small force is larger; the variance function is
-fitted to the log squared residuals). Each form's band is the same prediction band as above.
+polynomial of degree 1, 2 or 3 in θ, each with a constant spread of ln F (Eq. 9's assumption)
+or with a scatter of F about the curve μ of ``a μ² + b``: a relative noise plus the sensor's
+additive floor, fitted to the squared residuals by iteratively reweighted least squares. Near
+the first contact the force is within the sensor's noise, where a constant spread in log space
+fails both ways; the second model's band is built in force units and stays finite there. Each
+band adds the curve's own uncertainty (the covariance below) to the scatter.
 The recommended form is the one whose held-out coverage lies within ``level ± coverage_tol``
 (95 ± 3 %) with the narrowest band (mean width in g over the held-out samples); when none does,
 the one whose coverage is closest to the level. Its coverage is ``heldout_coverage``. With one
@@ -228,8 +231,11 @@ def read_synced(path: str | os.PathLike) -> pd.DataFrame:
 class LogModel:
     """A fitted model of ln F (F in g) against an angle θ (rad), with its prediction band.
 
-    The mean is a polynomial in the scaled angle ``z = (θ − centre) / half_range``; the residual
-    variance is constant or ``exp(v0 + v1 z)``.
+    The median curve is ``exp`` of a polynomial in the scaled angle ``z = (θ − centre) /
+    half_range``. With a constant variance the band is built in log space (Eq. 9's way); with
+    the varying one the scatter of F about the curve ``μ`` is ``a μ² + b`` (a relative noise and
+    the sensor's additive floor, in g²) and the band is built in force units, where that floor
+    keeps it finite at small forces.
 
     Attributes
     ----------
@@ -246,7 +252,8 @@ class LogModel:
     cov : tuple of tuple of float
         Covariance of ``coef`` (``se_method``).
     var_coef : tuple of float
-        ``(ln s²,)`` for a constant variance or ``(v0, v1)`` for the log-linear one.
+        ``(ln s²,)`` (s the residual sd of ln F) for a constant variance, or ``(a, b)`` of
+        ``var(F) = a μ² + b`` (dimensionless, g²) for the varying one.
     df_pred : float
         Degrees of freedom of the prediction band's t quantile.
     df : float
@@ -288,44 +295,90 @@ class LogModel:
         z = (np.asarray(theta, dtype=float) - self.centre) / self.half_range
         return np.vander(z, self.degree + 1, increasing=True)
 
-    def residual_var(self, theta: np.ndarray) -> np.ndarray:
-        """Residual variance of ln F at ``theta`` (rad)."""
-        th = np.asarray(theta, dtype=float)
-        if self.variance == "constant":
-            return np.full(th.shape, math.exp(self.var_coef[0]))
-        level = self.design(th) @ np.asarray(self.coef)
-        return self.var_coef[0] + self.var_coef[1] * np.exp(-2.0 * level)
-
     def predict(self, theta: np.ndarray, level: float) -> dict[str, np.ndarray]:
-        """Median curve and bands in ln g at ``theta`` (rad).
+        """Median curve and bands (g) at ``theta`` (rad).
 
-        Returns ``fit``, ``ci_lo``, ``ci_hi``, ``pi_lo``, ``pi_hi`` (ln g).
+        Returns ``fit``, ``ci_lo``, ``ci_hi`` (where the median curve lies), ``pi_lo``, ``pi_hi``
+        (where one new sample lies), all in g.
         """
         X = self.design(theta)
         y = X @ np.asarray(self.coef)
         var_mean = np.einsum("ij,jk,ik->i", X, np.asarray(self.cov), X)
         q = (1.0 + level) / 2.0
-        half_ci = float(stats.t.ppf(q, self.df)) * np.sqrt(var_mean)
-        half_pi = float(stats.t.ppf(q, self.df_pred)) * np.sqrt(var_mean + self.residual_var(theta))
-        return {"fit": y, "ci_lo": y - half_ci, "ci_hi": y + half_ci, "pi_lo": y - half_pi, "pi_hi": y + half_pi}
+        t_ci = float(stats.t.ppf(q, self.df))
+        t_pi = float(stats.t.ppf(q, self.df_pred))
+        mu = np.exp(y)
+        ci_lo, ci_hi = np.exp(y - t_ci * np.sqrt(var_mean)), np.exp(y + t_ci * np.sqrt(var_mean))
+        if self.variance == "constant":
+            half = t_pi * np.sqrt(var_mean + math.exp(self.var_coef[0]))
+            return {"fit": mu, "ci_lo": ci_lo, "ci_hi": ci_hi, "pi_lo": np.exp(y - half), "pi_hi": np.exp(y + half)}
+        a, b = self.var_coef
+        half = t_pi * np.sqrt(mu * mu * (a + var_mean) + b)  # var(F) plus the curve's own (delta method)
+        return {"fit": mu, "ci_lo": ci_lo, "ci_hi": ci_hi, "pi_lo": np.maximum(mu - half, 0.0), "pi_hi": mu + half}
 
 
-def _variance_function(r2: np.ndarray, inv_f2: np.ndarray, iterations: int = 4) -> tuple[float, float]:
-    """``(a, b) >= 0`` of ``var(ln F) = a + b / F²`` fitted to squared residuals ``r2``.
+def _variance_function(r2: np.ndarray, mu2: np.ndarray, iterations: int = 4) -> tuple[float, float]:
+    """``(a, b) >= 0`` of ``var(F) = a μ² + b`` fitted to squared force residuals ``r2`` (g²).
 
-    A relative noise (``a``) plus a sensor's additive noise (``b``, g²) seen in log space. Squared
+    ``a`` is a relative noise (dimensionless), ``b`` the sensor's additive noise (g²). Squared
     residuals scatter in proportion to their variance, so the fit is weighted least squares with
     weights ``1 / var²`` from the previous iteration (a Gaussian likelihood's scoring steps).
     """
-    Z = np.column_stack([np.ones(r2.size), inv_f2])
+    Z = np.column_stack([mu2, np.ones(r2.size)])
     w = np.ones(r2.size)
-    v = np.array([max(float(r2.mean()), 1e-12), 0.0])
+    v = np.array([0.0, max(float(r2.mean()), 1e-12)])
     for _ in range(iterations):
         sw = np.sqrt(w)
         v, _ = nnls(Z * sw[:, None], r2 * sw)
         var = np.maximum(Z @ v, 1e-12)
         w = 1.0 / var**2
-    return max(float(v[0]), 1e-12), float(v[1])
+    return float(v[0]), max(float(v[1]), 1e-12)
+
+
+def _fit_quasi(
+    X: np.ndarray, force: np.ndarray, start: np.ndarray, groups: np.ndarray, codes: np.ndarray, n_groups: int,
+    method: str, iterations: int = 8,
+) -> tuple[np.ndarray, tuple[float, float], np.ndarray, float, float, float]:
+    """Quasi-likelihood fit of ``E[F] = exp(X β)``, ``var(F) = a μ² + b`` (a log-link GLM).
+
+    Iteratively reweighted least squares: each step refits the variance function to the squared
+    residuals and solves the weighted normal equations of the working response
+    ``η + (F − μ) / μ`` with weights ``μ² / var``. The covariance of β is the GLM sandwich with the
+    trials as clusters (``method="cluster"``), or its model-based bread scaled by ``n / n_eff``
+    (Pearson residuals' lag-1 autocorrelation) otherwise.
+
+    Returns
+    -------
+    tuple
+        ``(β, (a, b), covariance, rho, n_eff, df)``.
+    """
+    n, p = X.shape
+    beta = np.asarray(start, dtype=float)
+    var_coef = (0.0, 1e-12)
+    for _ in range(iterations):
+        eta = np.clip(X @ beta, -50.0, 50.0)
+        mu = np.exp(eta)
+        r = force - mu
+        var_coef = _variance_function(r * r * (n / max(n - p, 1)), mu * mu)
+        var = np.maximum(var_coef[0] * mu * mu + var_coef[1], 1e-12)
+        w = mu * mu / var
+        z = eta + r / mu
+        sw = np.sqrt(w)
+        beta, *_ = np.linalg.lstsq(X * sw[:, None], z * sw, rcond=None)
+    mu = np.exp(np.clip(X @ beta, -50.0, 50.0))
+    var = np.maximum(var_coef[0] * mu * mu + var_coef[1], 1e-12)
+    pearson = (force - mu) / np.sqrt(var)
+    rho = float(np.clip(_lag1_within(pearson, groups), 0.0, 0.999))
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
+    bread = np.linalg.pinv(X.T @ (X * (mu * mu / var)[:, None]))
+    if method == "cluster":
+        scores = np.zeros((n_groups, p))
+        np.add.at(scores, codes, X * ((force - mu) * mu / var)[:, None])
+        factor = n_groups / (n_groups - 1) * (n - 1) / max(n - p, 1)
+        return beta, var_coef, factor * bread @ (scores.T @ scores) @ bread, rho, n_eff, float(n_groups - 1)
+    dispersion = float(np.mean(pearson * pearson))
+    scale = n / n_eff if method == "effective_n" else 1.0
+    return beta, var_coef, dispersion * scale * bread, rho, n_eff, max((n_eff if scale != 1.0 else n) - p, 1.0)
 
 
 def _lag1_within(resid: np.ndarray, groups: np.ndarray) -> float:
@@ -401,25 +454,25 @@ def fit_log_model(
         raise InputError(where, f"{cfg.angle} is constant; Eq. (8) has no slope to fit")
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     X = np.vander((x - centre) / half, p, increasing=True)
-    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
-    resid = y - X @ coef
-    rho = float(np.clip(_lag1_within(resid, g), 0.0, 0.999))
-    n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
     labels, codes = np.unique(g, return_inverse=True)
     method = cfg.se
     if method == "auto":
         method = "cluster" if labels.size >= cfg.min_clusters else "effective_n"
     if method == "cluster" and labels.size < 2:
         raise InputError(where, "cluster-robust errors need at least two trials")
-    cov, df = _covariance(X, resid, codes, labels.size, method, n_eff)
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     if variance == "constant":
+        resid = y - X @ coef
+        rho = float(np.clip(_lag1_within(resid, g), 0.0, 0.999))
+        n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
+        cov, df = _covariance(X, resid, codes, labels.size, method, n_eff)
         var_coef: tuple[float, ...] = (math.log(max(float(resid @ resid) / max(n - p, 1), 1e-300)),)
     else:
-        var_coef = _variance_function(resid * resid * (n / max(n - p, 1)), np.exp(-2.0 * (X @ coef)))
+        coef, var_coef, cov, rho, n_eff, df = _fit_quasi(X, np.exp(y), coef, g, codes, labels.size, method)
     return LogModel(
         form=form, degree=degree, variance=variance, centre=centre, half_range=half,
-        coef=tuple(float(c) for c in coef), cov=tuple(tuple(float(c) for c in row) for row in cov),
-        var_coef=var_coef, df_pred=max(n_eff - p, 1.0), df=df, se_method=method, n=n, n_trials=int(labels.size),
+        coef=tuple(float(c) for c in np.ravel(coef)), cov=tuple(tuple(float(c) for c in row) for row in cov),
+        var_coef=var_coef, df_pred=max(min(n_eff - p, labels.size - 1.0), 1.0), df=df, se_method=method, n=n, n_trials=int(labels.size),
         rho=rho, n_eff=float(n_eff), theta_min=lo, theta_max=hi,
     )
 
@@ -495,10 +548,10 @@ def heldout_score(theta: np.ndarray, ln_force: np.ndarray, groups: np.ndarray, f
             if not keep.any():
                 continue
             band = model.predict(th[keep], cfg.level)
-            y = ln_force[test][keep]
-            inside += int(np.sum((y >= band["pi_lo"]) & (y <= band["pi_hi"])))
-            above += int(np.sum(y > band["pi_hi"]))
-            width += float(np.sum(np.exp(band["pi_hi"]) - np.exp(band["pi_lo"])))
+            f = np.exp(ln_force[test][keep])
+            inside += int(np.sum((f >= band["pi_lo"]) & (f <= band["pi_hi"])))
+            above += int(np.sum(f > band["pi_hi"]))
+            width += float(np.sum(band["pi_hi"] - band["pi_lo"]))
             tested += int(keep.sum())
             folds += 1
     if tested == 0:
@@ -862,14 +915,14 @@ def bands(fit: SpeedFit, theta: np.ndarray | Sequence[float]) -> pd.DataFrame:
     return pd.DataFrame({
         "speed_mm_s": np.full(th.size, fit.speed_mm_s),
         fit.angle: th,
-        "f_fit_g": np.exp(e["fit"]),
-        "ci_lo_g": np.exp(e["ci_lo"]),
-        "ci_hi_g": np.exp(e["ci_hi"]),
-        "pi_lo_g": np.exp(e["pi_lo"]),
-        "pi_hi_g": np.exp(e["pi_hi"]),
-        "rec_fit_g": np.exp(r["fit"]),
-        "rec_lo_g": np.exp(r["pi_lo"]),
-        "rec_hi_g": np.exp(r["pi_hi"]),
+        "f_fit_g": e["fit"],
+        "ci_lo_g": e["ci_lo"],
+        "ci_hi_g": e["ci_hi"],
+        "pi_lo_g": e["pi_lo"],
+        "pi_hi_g": e["pi_hi"],
+        "rec_fit_g": r["fit"],
+        "rec_lo_g": r["pi_lo"],
+        "rec_hi_g": r["pi_hi"],
     })
 
 

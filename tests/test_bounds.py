@@ -176,33 +176,42 @@ def test_heldout_scores_count_left_out_trials():
     assert one.coverage is None and one.folds == 0
 
 
+def _fresh_coverage(fit, new: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Inside the recommended band, and inside Eq. (9)'s, for the contact samples of ``new``."""
+    new = new[np.isclose(new["speed_mm_s"], fit.speed_mm_s) & (new["theta_con"] > 0) & (new["force_g"] > 0)]
+    new = new[new["theta_con"].between(fit.theta_min, fit.theta_max)]
+    b = bands(fit, new["theta_con"].to_numpy())
+    f = new["force_g"].to_numpy()
+    return (b["rec_lo_g"].to_numpy() <= f) & (f <= b["rec_hi_g"].to_numpy()), f > b["pi_hi_g"].to_numpy()
+
+
 def test_recommended_bound_holds_on_trials_of_the_friction_model():
     """The bound is chosen among log-polynomial forms; the trials come from the friction model (contact
-    arcs, pressures, Stribeck friction, sensor noise), not from any of those forms. Its coverage of
-    left-out trials, and of a second experiment it never saw, stays within 95 +- 3 %, and it is
-    much narrower than Eq. (9)'s band, whose upper limit is almost never reached."""
+    arcs, pressures, Stribeck friction, sensor noise and quantisation), not from any of those forms.
+    Over four experiments of 10 trials at 3 speeds, each bound's coverage of its own left-out trials
+    is within 95 +- 3 %, and so, on average, is its coverage of a second experiment it never saw
+    (one experiment's coverage scatters by about 3 points: 10 trials). Eq. (9)'s upper limit is almost
+    never reached, and the recommended band is much narrower."""
     from pipeline.synthetic import synthetic_dataset
 
     speeds = (0.5, 3.0, 7.5)
-    first, _ = synthetic_dataset(np.random.default_rng(31), None, speeds_mm_s=speeds, trials=10)
-    second, _ = synthetic_dataset(np.random.default_rng(32), None, speeds_mm_s=speeds, trials=10)
-    fits, _ = fit_bounds(first)
-    inside_all = []
-    for fit in fits:
-        assert fit.recommended_holds and 0.92 <= fit.heldout_coverage <= 0.98, fit.speed_mm_s
-        assert fit.lack_of_fit.rejects and fit.lack_of_fit.curvature < 0  # ln F is concave in theta_con
-        new = second[np.isclose(second["speed_mm_s"], fit.speed_mm_s) & (second["theta_con"] > 0)
-                     & (second["force_g"] > 0)]
-        new = new[new["theta_con"].between(fit.theta_min, fit.theta_max)]
-        b = bands(fit, new["theta_con"].to_numpy())
-        f = new["force_g"].to_numpy()
-        inside = (b["rec_lo_g"].to_numpy() <= f) & (f <= b["rec_hi_g"].to_numpy())
-        assert 0.90 <= inside.mean() <= 0.99, (fit.speed_mm_s, inside.mean())  # measured 0.93-0.97
-        inside_all.append(inside)
-        scores = {s.form: s for s in fit.scores}
-        assert scores[fit.recommended.form].mean_width_g < 0.6 * scores["eq9"].mean_width_g
-        assert scores["eq9"].above < 0.005 < scores[fit.recommended.form].above
-    assert 0.93 <= np.concatenate(inside_all).mean() <= 0.97  # measured 0.952
+    loto, fresh, eq9_above = [], [], []
+    for seed in (31, 33, 35, 37):
+        first, _ = synthetic_dataset(np.random.default_rng(seed), None, speeds_mm_s=speeds, trials=10)
+        second, _ = synthetic_dataset(np.random.default_rng(seed + 1000), None, speeds_mm_s=speeds, trials=10)
+        fits, _ = fit_bounds(first)
+        for fit in fits:
+            assert fit.recommended_holds and 0.92 <= fit.heldout_coverage <= 0.98, (seed, fit.speed_mm_s)
+            assert fit.lack_of_fit.rejects and fit.lack_of_fit.curvature < 0  # ln F is concave in theta_con
+            inside, above = _fresh_coverage(fit, second)
+            loto.append(fit.heldout_coverage)
+            fresh.append(inside.mean())
+            eq9_above.append(above.mean())
+            scores = {s.form: s for s in fit.scores}
+            assert scores[fit.recommended.form].mean_width_g < 0.8 * scores["eq9"].mean_width_g
+    print(f"left-out {np.mean(loto):.3f}, fresh {np.mean(fresh):.3f} ({min(fresh):.3f}-{max(fresh):.3f})")
+    assert 0.93 <= np.mean(fresh) <= 0.97 and abs(np.mean(fresh) - np.mean(loto)) < 0.02
+    assert min(fresh) > 0.85 and max(eq9_above) < 0.01
 
 
 # --------------------------------------------------------------------------- files and figures

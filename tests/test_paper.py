@@ -33,6 +33,14 @@ def fit():
     return fit_table_ii()
 
 
+def test_table_iii_is_the_papers():
+    from pipeline.paper import TABLE_III
+
+    assert TABLE_III["theta_bot"].tolist() == [1.68, 1.41, 1.26, 0.94, 0.77, 0.84]
+    assert TABLE_III["theta_con"].tolist() == [1.17, 1.71, 2.23, 3.04, 3.61, 3.63]
+    assert TABLE_III["theta_tip"].tolist() == [2.84, 3.12, 3.49, 3.98, 4.38, 4.47]
+
+
 def test_scenarios_are_table_i_as_printed():
     assert TABLE_II_THETA_CON == THETA_CON
     for name in ("S3", "S4"):
