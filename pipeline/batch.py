@@ -1237,7 +1237,7 @@ def extract_batch(
 
 #: Columns every manifest must have (plus ``video`` and/or ``angles``).
 MANIFEST_REQUIRED: tuple[str, ...] = ("trial", "speed_mm_s", "force")
-_MANIFEST_PATHS = ("video", "angles", "force")
+_MANIFEST_PATHS = ("video", "angles", "force", "depth", "format")
 
 
 def _number(where: str, column: str, text: str, *, positive: bool) -> float:

@@ -377,6 +377,9 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bootstrap", type=positive_int, default=1000, metavar="B",
                    help="bootstrap resamples of trials in the diagnosis (default 1000)")
     p.add_argument("--overwrite", action="store_true", help="redo every stage (default: reuse up-to-date outputs)")
+    p.add_argument("--format", metavar="FILE", dest="log_format",
+                   help="log format file (TOML) for the lab's own force, depth and angle logs, for the manifest rows "
+                        "whose 'format' cell is blank (as 'tympani sync --format')")
     _add_extract_options(p)
 
 
@@ -391,7 +394,7 @@ def _run_config(args: argparse.Namespace, *, workers: int | None = None):
         extract=_extract_config(args), fit=replace(base.fit, seed=args.seed),
         diagnosis=replace(base.diagnosis, seed=args.seed, bootstrap=args.bootstrap),
         scenario=None if str(args.scenario).lower() == "none" else str(args.scenario).upper(),
-        fps=getattr(args, "fps", None),
+        fps=getattr(args, "fps", None), log_format=getattr(args, "log_format", None),
     )
 
 
@@ -413,6 +416,7 @@ def _run_run(args: argparse.Namespace) -> int:
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
                "--glitch-rad", str(args.glitch_rad)]
     command += ["--fps", str(args.fps)] if args.fps else []
+    command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []
     command += ["--array-diameters", ",".join(f"{d:g}" for d in args.array_diameters)] if args.array_diameters else []
     command += ["--overwrite"] if args.overwrite else []
