@@ -275,7 +275,7 @@ def read_table_lines(
 
 #: Data rows parsed at a time by :func:`read_csv_columns` (a chunk's text and arrays are the
 #: reader's working memory: about 10 MB for a ROS log's lines).
-CSV_CHUNK_ROWS = 100_000
+CSV_CHUNK_ROWS = 20_000
 
 #: Kinds of column :func:`read_csv_columns` parses: ``"stamp"`` keeps integer text exact
 #: (int64), ``"number"`` is float.
@@ -810,7 +810,7 @@ def clean_force_samples(samples: ForceSamples, cfg: ForceLogConfig = ForceLogCon
         warnings.append(what)
 
     data = pd.DataFrame({"time_s": time_s, "force_g": force, "depth_mm": depth, "saturated": saturated,
-                         "line": lines.astype(int)})
+                         "line": lines.astype(int, copy=False)}, copy=False)
     report = ForceLogReport(
         path=name,
         unit=samples.unit,

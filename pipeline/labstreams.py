@@ -95,10 +95,18 @@ class Clock:
         if stamps.dtype.kind in "iu":
             big = int(np.max(np.abs(stamps))) if stamps.size else 0
             if big <= (2**62) // k and (self.origin_ns is None or abs(self.origin_ns) < 2**62):
-                ns = stamps.astype(np.int64) * k - (self.origin_ns or 0)
-                return ns.astype(np.float64) / 1e9
+                ns = stamps.astype(np.int64)  # a copy, worked in place (big logs: one temporary array)
+                ns *= k
+                ns -= self.origin_ns or 0
+                out = ns.astype(np.float64)
+                del ns
+                out /= 1e9
+                return out
         origin_units = 0.0 if self.origin_ns is None else self.origin_ns / k
-        return (stamps.astype(np.float64) - origin_units) * (k / 1e9)
+        out = stamps.astype(np.float64)
+        out -= origin_units
+        out *= k / 1e9
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,9 +357,11 @@ def read_force_stream(path: str | os.PathLike, fmt: ForceFormat, cfg: ForceLogCo
     k = fmt.ns_per_unit
     origin_ns = first * k if isinstance(first, int) else int(round(first * k))
     clock = Clock(origin_ns=origin_ns, origin=f"{first} {fmt.time_unit}")
+    force = raw.values["force"]
+    force *= fmt.to_g  # in place: a big log's arrays are not copied more than needed
     samples = ForceSamples(
         time_s=clock.seconds(raw.stamps, fmt.time_unit),
-        force_g=raw.values["force"] * fmt.to_g,
+        force_g=force,
         depth_mm=np.full(raw.stamps.size, np.nan),
         lines=raw.lines,
         name=raw.name,
@@ -362,6 +372,7 @@ def read_force_stream(path: str | os.PathLike, fmt: ForceFormat, cfg: ForceLogCo
         force_label=f"[force] column {fmt.column!r}",
         check_units=False,
     )
+    del raw, force
     data, report = clean_force_samples(samples, cfg)
     return data, report, clock
 
