@@ -359,9 +359,11 @@ def _chunk_values(
     """
     import io
 
+    data = text.encode("utf-8")  # the parser reads bytes; a text buffer would hold 4 bytes a character
+
     def parse(as_text: Sequence[int]) -> pd.DataFrame:
         try:
-            return pd.read_csv(io.StringIO(text), header=None, usecols=list(index), dtype={i: object for i in as_text},
+            return pd.read_csv(io.BytesIO(data), header=None, usecols=list(index), dtype={i: object for i in as_text},
                                keep_default_na=False, na_values=_NA_VALUES, skipinitialspace=True, engine="c")
         except (pd.errors.ParserError, ValueError) as exc:
             raise InputError(f"{name}:{int(lines[0])}", f"cannot read the rows from here on as CSV ({one_line(exc)})") from None

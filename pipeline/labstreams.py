@@ -127,6 +127,9 @@ class RawStream:
         The CSV header (a bag: the fields read).
     comments : tuple of str
         CSV comment lines.
+    time_unit : str
+        Unit of ``stamps``: the format's ``time_unit``, or ``"ns"`` for a bag's record time or
+        a ROS time field.
     """
 
     name: str
@@ -135,6 +138,7 @@ class RawStream:
     lines: np.ndarray
     columns: tuple[str, ...] = ()
     comments: tuple[str, ...] = ()
+    time_unit: str = "s"
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,7 +270,8 @@ def read_stream(path: str | os.PathLike, fmt: StreamFormat, fields: Mapping[str,
         bag = read_bag_fields(p, fmt.topic, {k: col for k, (_, col) in fields.items()}, time_field=fmt.time_column,
                               section=fmt.section, key_of={k: key for k, (key, _) in fields.items()})
         return RawStream(name=f"{name}#{fmt.topic}", stamps=bag.stamps, values=bag.values, lines=bag.index,
-                         columns=tuple(col for _, col in fields.values()))
+                         columns=tuple(col for _, col in fields.values()),
+                         time_unit="ns" if bag.stamps_ns else fmt.time_unit)
     if fmt.topic is not None:
         raise InputError(p, f"[{fmt.section}] topic {fmt.topic!r} is for ROS bags (.bag, .mcap), and this log is "
                             "not one")
@@ -287,7 +292,7 @@ def read_stream(path: str | os.PathLike, fmt: StreamFormat, fields: Mapping[str,
 
     table = read_csv_columns(p, wanted, name=name)
     return RawStream(name=name, stamps=table.values[time_col], values={k: table.values[col] for k, (_, col) in fields.items()},
-                     lines=table.lines, columns=table.header.columns, comments=table.comments)
+                     lines=table.lines, columns=table.header.columns, comments=table.comments, time_unit=fmt.time_unit)
 
 
 def _first_stamp(raw: RawStream, fmt: StreamFormat) -> int | float:
@@ -354,13 +359,13 @@ def read_force_stream(path: str | os.PathLike, fmt: ForceFormat, cfg: ForceLogCo
     """
     raw = read_stream(path, fmt, {"force": ("column", fmt.column)})
     first = _first_stamp(raw, fmt)
-    k = fmt.ns_per_unit
+    k = TIME_UNITS[raw.time_unit]
     origin_ns = first * k if isinstance(first, int) else int(round(first * k))
-    clock = Clock(origin_ns=origin_ns, origin=f"{first} {fmt.time_unit}")
+    clock = Clock(origin_ns=origin_ns, origin=f"{first} {raw.time_unit}")
     force = raw.values["force"]
     force *= fmt.to_g  # in place: a big log's arrays are not copied more than needed
     samples = ForceSamples(
-        time_s=clock.seconds(raw.stamps, fmt.time_unit),
+        time_s=clock.seconds(raw.stamps, raw.time_unit),
         force_g=force,
         depth_mm=np.full(raw.stamps.size, np.nan),
         lines=raw.lines,
@@ -407,7 +412,7 @@ def read_depth_log(path: str | os.PathLike, fmt: DepthFormat | None, clock: Cloc
     raw = read_stream(path, section, {"depth": ("column", section.column)})
     if raw.stamps.size == 0:
         raise InputError(raw.name, "[depth] no samples (only a header)")
-    t = clock.seconds(raw.stamps, section.time_unit)
+    t = clock.seconds(raw.stamps, raw.time_unit)
     depth = raw.values["depth"] * section.to_mm
     lines = raw.lines
     _check_increasing(t, lines, raw.name, _time_label(section))
@@ -480,7 +485,7 @@ def read_angle_track(path: str | os.PathLike, fmt: AnglesFormat, clock: Clock, d
     if raw.stamps.size == 0:
         raise InputError(raw.name, "[angles] no samples (only a header)")
     own = Clock()  # the track's own clock: its stamps as they are
-    t = (clock if fmt.zero == "log" else own).seconds(raw.stamps, fmt.time_unit)
+    t = (clock if fmt.zero == "log" else own).seconds(raw.stamps, raw.time_unit)
     lines = raw.lines
     _check_increasing(t, lines, raw.name, _time_label(fmt))
     values = {k: raw.values[k] * fmt.to_rad for k in fmt.columns}

@@ -172,14 +172,20 @@ def find_motion(
         raise NoMotion(f"never moves: its positions span {span:.3g} mm over {t[-1] - t[0]:.4g} s "
                        f"(less than {min_travel_mm:g} mm)")
     floor = rel_threshold * span
+    moving = NoMotion("starts while the stage moves (its first samples already differ by more than "
+                      f"{floor:.3g} mm): no rest before the motion marks its start")
     head = _rest_stretch(d, 100.0 * floor)
+    if head.size < 3:
+        raise moving
     noise = rest_noise(head)
     tau = max(k_noise * noise, floor)
-    rest = float(np.median(_rest_stretch(d, tau))) if head.size else float(d[0])
+    still = _rest_stretch(d, tau)
+    if still.size < 3:
+        raise moving
+    rest = float(np.median(still))
     i = _departure(t, d, rest, tau)
     if i is None or i < 2:
-        raise NoMotion(f"starts while the stage moves (its first samples already differ by more than {tau:.3g} mm): "
-                       "no rest before the motion marks its start")
+        raise moving
     start = _crossing(t[i - 1], t[i], abs(d[i - 1] - rest), abs(d[i] - rest), tau)
 
     final_tail = _rest_stretch(d[::-1], tau)[::-1]

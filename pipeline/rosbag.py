@@ -52,12 +52,16 @@ class BagFields:
         1-based number of each message on the topic (for messages: ``"message 12"``).
     msgtype : str
         The topic's message type.
+    stamps_ns : bool
+        Whether ``stamps`` are ns (the record time, or a ROS time field) rather than a plain
+        number in the time field's own unit.
     """
 
     stamps: np.ndarray
     values: dict[str, np.ndarray]
     index: np.ndarray
     msgtype: str
+    stamps_ns: bool = True
 
 
 def _steps(path: str) -> list[str | int]:
@@ -179,6 +183,7 @@ def read_bag_fields(
             raise InputError(name, f"[{section}] {key_of.get(key, 'column')} {exc}") from None
     stamps: array = array("q")
     float_stamps: list[float] | None = None
+    ros_time = time_field is None
     values = {k: array("d") for k in fields}
     try:
         with AnyReader([p], default_typestore=_typestore()) as reader:
@@ -199,7 +204,9 @@ def read_bag_fields(
                     stamps.append(int(recorded))
                     continue
                 try:
-                    t = _stamp(field_value(msg, time_field))
+                    value = field_value(msg, time_field)
+                    ros_time = hasattr(value, "sec")
+                    t = _stamp(value)
                 except (KeyError, TypeError) as exc:
                     raise InputError(name, f"[{section}] time_column {time_field!r}: message {n} of {topic} "
                                            f"({conn.msgtype}) has {exc.args[0]}") from None
@@ -218,4 +225,4 @@ def read_bag_fields(
         raise InputError(name, f"[{section}] topic {topic!r} has no messages")
     times = np.asarray(float_stamps, dtype=np.float64) if float_stamps is not None else np.frombuffer(stamps, dtype=np.int64).copy()
     return BagFields(stamps=times, values={k: np.frombuffer(v, dtype=np.float64).copy() for k, v in values.items()},
-                     index=np.arange(1, n + 1, dtype=np.int64), msgtype=msgtype)
+                     index=np.arange(1, n + 1, dtype=np.int64), msgtype=msgtype, stamps_ns=ros_time)
