@@ -10,6 +10,13 @@ stacks the trials into one table::
 
 ``time_s`` is the force clock; ``video_time_s = time_s - sync_offset_s``.
 
+A lab's own logs (epoch stamps, newtons with a sign and a gain, a depth log of the robot's stage,
+another tracker's angle track) are read through a log format file (:mod:`pipeline.logformat`,
+:mod:`pipeline.labstreams`): the manifest's ``format`` column or ``log_format`` for the rows
+without one. A depth log (manifest column ``depth``) fills ``depth_mm``; another tracker's track
+brings its own offset (its ``zero``: the force log's clock, the depth log's motion start, or a
+number of seconds) instead of the estimate below. ``docs/lab-logs.md`` works through an example.
+
 The offset
 ----------
 ``video_t0_s`` from the manifest is used when the trial's cell is filled in (``t0="auto"``,
