@@ -332,13 +332,14 @@ def test_bad_missing_column(tmp_path, capsys):
     _only_bad_fails(capsys, tmp_path, manifest, f"{p['depth']}:1: [depth] column 'position' is not a column of the log")
 
 
-def test_bad_clock_goes_backwards(tmp_path, capsys):
+@pytest.mark.parametrize("stream, key", [("force", "[force] time_column '%time'"), ("depth", "[depth] time_column '%time'"),
+                                         ("angles", "[angles] time_column 'time'")])
+def test_bad_clock_goes_backwards(tmp_path, capsys, stream, key):
     manifest, p = _two_trials(tmp_path)
-    lines = p["force"].read_text().splitlines()
+    lines = p[stream].read_text().splitlines()
     lines[40], lines[41] = lines[41], lines[40]
-    p["force"].write_text("\n".join(lines) + "\n")
-    _only_bad_fails(capsys, tmp_path, manifest, f"{p['force']}:42: [force] time_column '%time' goes backwards",
-                    "on line 41")
+    p[stream].write_text("\n".join(lines) + "\n")
+    _only_bad_fails(capsys, tmp_path, manifest, f"{p[stream]}:42: {key} goes backwards", "on line 41")
 
 
 def test_bad_depth_log_never_moves(tmp_path, capsys):
