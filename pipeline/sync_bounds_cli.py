@@ -91,6 +91,12 @@ def run_sync(args: argparse.Namespace) -> int:
             unc = f" ± {t.uncertainty_s:.2g} s" if t.uncertainty_s else ""
             print(f"  {t.trial}: video_t0_s {t.offset_s:.4g} s{unc} ({t.method}); "
                   f"{t.n_with_angles}/{t.n_samples} samples with angles")
+            if t.depth is not None:
+                m = t.depth["motion"]
+                stop = (f"stops at {m.stop_s:.4g} s ± {m.stop_uncertainty_s:.2g} s" if m.stopped
+                        else f"still moves when its log ends at {m.stop_s:.4g} s")
+                print(f"    depth log: the stage starts at {m.start_s:.4g} s ± {m.start_uncertainty_s:.2g} s and {stop}; "
+                      f"{m.travel_mm:.4g} mm at {m.speed_mm_s:.3g} mm/s")
             for warning in t.warnings:
                 print(f"    warning: {warning}")
     if any(t.error_kind == "error" for t in result.failed):

@@ -169,6 +169,7 @@ def test_sync_with_the_format_option_and_the_report(tmp_path, capsys):
                           tmp_path / "lab.toml")
     assert code == 0 and not _err_lines(err)
     assert "r1: video_t0_s " in out and "(format:motion_start)" in out
+    assert "depth log: the stage starts at 2.69" in out and "stops at 18.7 s" in out and "20 mm at 1.25 mm/s" in out
     report = json.loads((tmp_path / "s.sync.json").read_text())
     assert [t["offset_s"] for t in report["trials"]] == pytest.approx([2.7, 4.0], abs=0.005)
     assert report["log_format"] == str((tmp_path / "lab.toml").resolve())
