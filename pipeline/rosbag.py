@@ -124,11 +124,14 @@ def _number(value: Any) -> float:
 
 
 def _typestore() -> Any:
+    """The message types for bags that carry no definitions of their own (None: rosbags too old
+    to have type stores; bags with definitions still read)."""
     try:
         from rosbags.typesys import Stores, get_typestore
-    except ImportError:  # pragma: no cover - rosbags older than 0.9.20
+
+        return get_typestore(Stores.LATEST)
+    except (ImportError, AttributeError):  # pragma: no cover - rosbags older than 0.9.20
         return None
-    return get_typestore(Stores.LATEST)
 
 
 def read_bag_fields(
@@ -186,7 +189,8 @@ def read_bag_fields(
     ros_time = time_field is None
     values = {k: array("d") for k in fields}
     try:
-        with AnyReader([p], default_typestore=_typestore()) as reader:
+        store = _typestore()
+        with (AnyReader([p], default_typestore=store) if store is not None else AnyReader([p])) as reader:
             conns = [c for c in reader.connections if c.topic == topic]
             if not conns:
                 have = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
