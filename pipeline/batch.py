@@ -1237,7 +1237,7 @@ def extract_batch(
 
 #: Columns every manifest must have (plus ``video`` and/or ``angles``).
 MANIFEST_REQUIRED: tuple[str, ...] = ("trial", "speed_mm_s", "force")
-_MANIFEST_PATHS = ("video", "angles", "force")
+_MANIFEST_PATHS = ("video", "angles", "force", "depth", "format")
 
 
 def _number(where: str, column: str, text: str, *, positive: bool) -> float:
@@ -1255,8 +1255,9 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
 
     The manifest is a CSV with a header row and one row a trial: ``trial``, ``speed_mm_s``,
     ``force`` and ``video`` and/or ``angles`` (file paths relative to the manifest's folder),
-    optionally ``fps`` and ``video_t0_s``. Blank lines and lines starting with ``#`` are
-    skipped. Further columns are kept.
+    optionally ``fps``, ``video_t0_s``, ``depth`` (a depth log) and ``format`` (a log format
+    file, :mod:`pipeline.logformat`). Blank lines and lines starting with ``#`` are skipped.
+    Further columns are kept.
 
     Parameters
     ----------
@@ -1269,7 +1270,8 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
     -------
     DataFrame
         One row a trial, in file order: ``trial`` (str), ``speed_mm_s`` (float, mm/s),
-        ``video``, ``angles``, ``force`` (absolute path strings, None when blank), ``fps``
+        ``video``, ``angles``, ``force`` (absolute path strings, None when blank; ``depth`` and
+        ``format`` too, when the manifest has those columns), ``fps``
         (float frames/s, NaN when blank), ``video_t0_s`` (float s, 0 when blank), ``line``
         (line number in the manifest) and any extra columns (strings).
 

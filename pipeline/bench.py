@@ -25,7 +25,9 @@
 4. **diagnosis time** of :func:`pipeline.diagnosis.diagnose` on a synthetic 5-speed ×
    ``trials`` dataset (:func:`pipeline.synthetic.synthetic_dataset`, no video);
 5. **batch throughput** of :func:`pipeline.batch.extract_batch` on ``batch_videos`` copies of
-   the video with 1, 2 and 4 worker processes.
+   the video with 1, 2 and 4 worker processes;
+6. **log reading**: seconds and peak memory of reading a ``log_rows``-row ROS force CSV through
+   a log format, in a fresh process (:mod:`pipeline.logbench`).
 
 A section that fails is reported with its reason; the others still run. It is a command, not a
 test: the numbers depend on the machine and its load (the ratio is the most robust figure).
@@ -56,7 +58,7 @@ from vision.errors import one_line
 __all__ = ["BenchConfig", "render_bench_video", "loop_video", "run_bench", "format_bench", "SECTIONS"]
 
 #: Optional sections of the bench (the decode/extraction comparison always runs).
-SECTIONS: tuple[str, ...] = ("memory", "diagnosis", "workers")
+SECTIONS: tuple[str, ...] = ("memory", "diagnosis", "workers", "logs")
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,8 @@ class BenchConfig:
         it outweighed the parallel work in every run, so the default is 8.
     sections : tuple of str
         Which of :data:`SECTIONS` to run.
+    log_rows : int
+        Rows of the ROS force CSV of the log-reading figure.
     repeats : int
         Times decoding and extraction are each timed, alternately (the fastest of each is
         compared; at least 3 give a median of the warm rounds).
@@ -111,10 +115,11 @@ class BenchConfig:
     batch_videos: int = 8
     sections: tuple[str, ...] = SECTIONS
     repeats: int = 5
+    log_rows: int = 1_000_000
 
     def __post_init__(self) -> None:
-        if self.n_frames < 1 or self.long_factor < 1 or self.batch_videos < 1 or self.repeats < 1:
-            raise ValueError("n_frames, long_factor, batch_videos and repeats must be >= 1")
+        if self.n_frames < 1 or self.long_factor < 1 or self.batch_videos < 1 or self.repeats < 1 or self.log_rows < 1:
+            raise ValueError("n_frames, long_factor, batch_videos, repeats and log_rows must be >= 1")
         if not self.noise_sigma >= 0:
             raise ValueError(f"noise_sigma must be >= 0 grey levels, not {self.noise_sigma!r}")
         if len(self.size) != 2 or min(self.size) < 64:
@@ -130,8 +135,9 @@ class BenchConfig:
     @classmethod
     def quick(cls, **changes: Any) -> "BenchConfig":
         """Small sizes for a smoke test (about 30 s): 30 frames, 2 trials a speed, 1 and 2
-        workers on 2 videos, 2 timings each; ``changes`` override."""
-        return dataclasses.replace(cls(n_frames=30, trials=2, workers=(1, 2), batch_videos=2, repeats=2), **changes)
+        workers on 2 videos, 2 timings each, a 50,000-row log; ``changes`` override."""
+        return dataclasses.replace(cls(n_frames=30, trials=2, workers=(1, 2), batch_videos=2, repeats=2,
+                                       log_rows=50_000), **changes)
 
 
 def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed: int = 0,
@@ -444,6 +450,16 @@ def _workers(path: Path, cfg: Any, fps: float | None, config: BenchConfig, tmp: 
     return out
 
 
+# --------------------------------------------------------------------------- 6: log reading
+
+
+def _logs(config: BenchConfig, tmp: Path) -> dict:
+    """Section 6: read a ``config.log_rows``-row ROS force CSV in a fresh process."""
+    from pipeline.logbench import bench_log_read
+
+    return bench_log_read(config.log_rows, seed=config.seed, folder=tmp / "logs")
+
+
 # --------------------------------------------------------------------------- all
 
 
@@ -484,7 +500,8 @@ def run_bench(
         ``import_rss_mib``, ``peak_rss_mib``, ``n_frames``, ``seconds``; ``growth_mib``),
         ``diagnosis`` (``rows``, ``generate_s``, ``diagnose_s``, ``verdict``, ...), ``workers``
         (one dict per count: ``workers``, ``videos``, ``ok``, ``frames``, ``seconds``,
-        ``videos_per_s``, ``frames_per_s``, ``error``) for the sections run; ``errors``
+        ``videos_per_s``, ``frames_per_s``, ``error``), ``logs`` (see
+        :func:`pipeline.logbench.bench_log_read`) for the sections run; ``errors``
         (section -> one-line reason) and ``total_s``.
     """
     import cv2
@@ -521,6 +538,7 @@ def run_bench(
                 ("memory", lambda: _memory(path, cfg, fps, config.long_factor, tmp)),
                 ("diagnosis", lambda: _diagnosis(config)),
                 ("workers", lambda: _workers(path, cfg, fps, config, tmp)),
+                ("logs", lambda: _logs(config, tmp)),
             ]
             for name, run in sections:
                 if name not in config.sections:
@@ -587,6 +605,10 @@ def format_bench(result: dict) -> str:
             note = f"  {w['videos'] - w['ok']} failed: {w['error']}" if w["ok"] < w["videos"] else ""
             lines.append(f"  {w['workers']:<12d} {w['videos']:6d} {w['seconds']:7.2f} {w['videos_per_s']:9.2f} "
                          f"{w['frames_per_s']:9.1f}{note}")
+    if "logs" in result:
+        from pipeline.logbench import format_log_bench
+
+        lines.append(format_log_bench(result["logs"]))
     for name, reason in errors.items():
         lines.append(f"{name:<14s} FAILED: {reason}")
     lines.append(f"bench total    {result['total_s']:8.1f} s")

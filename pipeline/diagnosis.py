@@ -99,6 +99,7 @@ from scipy import stats
 from scipy.optimize import least_squares, nnls
 from scipy.signal import lfilter
 
+from pipeline.data_needs import has_contact_angles, require
 from vision.errors import InputError
 from vision.geometry import DEFAULT_PHANTOM, Phantom
 
@@ -515,6 +516,9 @@ def prepare(
     missing = [c for c in SYNCED_COLUMNS if c not in table.columns]
     if missing:
         raise InputError(source, f"missing column(s) {', '.join(missing)}; {DATA_NEEDED}")
+    if not has_contact_angles(table):  # tip-only angle tracks: say all the data lack, in one line
+        require(table, source, "the diagnosis", min_speeds=config.min_speeds,
+                min_trials_per_speed=config.min_trials_per_speed)
     raw_time = pd.to_numeric(table["time_s"], errors="coerce")
     log_start = raw_time.groupby(table["trial"].astype(str)).min()
     data, notes = validate_synced(table, source, min_rows=20, moving_only=False)

@@ -34,17 +34,18 @@ fewer than ``min_samples`` samples             error
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import IO, Any, Callable, Iterator, Literal, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
-from vision.errors import InputError
+from vision.errors import InputError, one_line
 
 __all__ = [
     "G_PER_N",
@@ -54,7 +55,13 @@ __all__ = [
     "CleaningStep",
     "ForceLogReport",
     "read_table_lines",
+    "CSV_CHUNK_ROWS",
+    "CsvHeader",
+    "CsvColumns",
+    "read_csv_columns",
     "parse_numeric",
+    "ForceSamples",
+    "clean_force_samples",
     "parse_force_log",
     "read_force_log",
     "find_saturation",
@@ -217,6 +224,9 @@ def read_table_lines(
 ) -> tuple[list[str], list[list[str]], np.ndarray, list[str]]:
     """Split a CSV with ``#`` comment lines into header, rows and line numbers.
 
+    For small tables (angles, synced) read whole; logs are read in chunks by
+    :func:`read_csv_columns`, which follows the same rules.
+
     Parameters
     ----------
     text : str
@@ -262,6 +272,236 @@ def read_table_lines(
             raise InputError(f"{name}:{lineno}", f"{len(values)} fields, but the header (line {kept[0][0]}) has {len(header)}")
         rows.append([v.strip() for v in values])
     return header, rows, np.array([k for k, _ in kept[1:]], dtype=int), comments
+
+
+#: Data rows parsed at a time by :func:`read_csv_columns` (a chunk's text and arrays are the
+#: reader's working memory: about 10 MB for a ROS log's lines).
+CSV_CHUNK_ROWS = 20_000
+
+#: Kinds of column :func:`read_csv_columns` parses: ``"stamp"`` keeps integer text exact
+#: (int64), ``"number"`` is float.
+ColumnKind = Literal["stamp", "number"]
+
+_NA_VALUES = sorted({v for t in _NAN_TEXT for v in (t, t.upper(), t.capitalize())})
+
+
+@dataclass(frozen=True)
+class CsvHeader:
+    """The header of a CSV log.
+
+    Parameters
+    ----------
+    name : str
+        The file's name (for messages).
+    columns : tuple of str
+        Column names (stripped).
+    line : int
+        Its 1-based line number.
+    """
+
+    name: str
+    columns: tuple[str, ...]
+    line: int
+
+
+@dataclass(frozen=True, eq=False)
+class CsvColumns:
+    """Columns of a CSV log read by :func:`read_csv_columns`.
+
+    Parameters
+    ----------
+    header : CsvHeader
+    values : dict of str to ndarray
+        Each requested column: int64 for a ``"stamp"`` column whose every cell is an integer,
+        else float64 (NaN for empty and NaN cells).
+    lines : ndarray of int64
+        1-based line number of each data row.
+    comments : tuple of str
+        Comment lines without their ``#`` (stripped).
+    """
+
+    header: CsvHeader
+    values: dict[str, np.ndarray]
+    lines: np.ndarray
+    comments: tuple[str, ...]
+
+    @property
+    def n_rows(self) -> int:
+        """Data rows read."""
+        return int(self.lines.size)
+
+
+@contextlib.contextmanager
+def _text_lines(source: str | os.PathLike | IO[str]) -> Iterator[IO[str]]:
+    """An open text stream of ``source`` (a path, or a text stream used as it is)."""
+    if hasattr(source, "read"):
+        yield source  # type: ignore[misc]
+        return
+    try:
+        fh = open(source, encoding="utf-8-sig", newline="")  # type: ignore[arg-type]
+    except OSError as exc:
+        raise InputError(os.fspath(source), f"cannot read ({type(exc).__name__}: {exc})") from None  # type: ignore[arg-type]
+    with fh:
+        yield fh
+
+
+def _split_fields(line: str) -> list[str]:
+    return next(csv.reader([line]), [])
+
+
+def _chunk_values(
+    text: str, index: Sequence[int], kinds: Sequence[ColumnKind], names: Sequence[str], lines: np.ndarray, name: str
+) -> list[np.ndarray]:
+    """Parse the requested columns of one chunk of data lines.
+
+    The C parser reads numbers; a column it could not read as numbers (or with an infinity, or
+    a stamp column that is not all integers) is re-read as text and converted by
+    :func:`parse_numeric`, which names the first bad cell's line.
+    """
+    import io
+
+    data = text.encode("utf-8")  # the parser reads bytes; a text buffer would hold 4 bytes a character
+
+    def parse(as_text: Sequence[int]) -> pd.DataFrame:
+        try:
+            return pd.read_csv(io.BytesIO(data), header=None, usecols=list(index), dtype={i: object for i in as_text},
+                               keep_default_na=False, na_values=_NA_VALUES, skipinitialspace=True, engine="c")
+        except (pd.errors.ParserError, ValueError) as exc:
+            raise InputError(f"{name}:{int(lines[0])}", f"cannot read the rows from here on as CSV ({one_line(exc)})") from None
+
+    frame = parse(())
+    out = []
+    for i, kind, column in zip(index, kinds, names):
+        col = frame[i]
+        if kind == "stamp" and col.dtype.kind == "i":
+            out.append(col.to_numpy(np.int64))
+            continue
+        if kind == "stamp" and col.dtype.kind == "f":
+            values = col.to_numpy(np.float64)
+            finite = values[np.isfinite(values)]
+            # below 2**53 a float holds an integer stamp exactly; larger ones are re-read as text
+            if not np.isinf(values).any() and (finite.size == 0 or float(np.max(np.abs(finite))) < 2.0**53):
+                out.append(values)
+                continue
+        if kind == "number" and col.dtype.kind in "fi":
+            values = col.to_numpy(np.float64)
+            if not np.isinf(values).any():
+                out.append(values)
+                continue
+        cells = parse((i,))[i].to_numpy(object)
+        if kind == "stamp":
+            try:
+                out.append(cells.astype(np.int64))  # int() of each cell: exact, whitespace allowed
+                continue
+            except (ValueError, TypeError, OverflowError):
+                pass
+        texts = ["" if isinstance(c, float) else str(c).strip() for c in cells]
+        out.append(parse_numeric(texts, lines, column=column, name=name))
+    return out
+
+
+def read_csv_columns(
+    source: str | os.PathLike | IO[str],
+    columns: Mapping[str, ColumnKind] | Callable[[CsvHeader], Mapping[str, ColumnKind]],
+    *,
+    name: str | None = None,
+    chunk_rows: int = CSV_CHUNK_ROWS,
+) -> CsvColumns:
+    """Read some columns of a CSV log in chunks (``#`` lines are comments, blank lines skipped).
+
+    The file is read line by line and parsed ``chunk_rows`` data rows at a time, so memory
+    holds one chunk's text and the columns asked for, never the whole file: a 1 GB log of
+    seven columns, of which two are read, needs about a fifth of its size.
+
+    Parameters
+    ----------
+    source : str, PathLike or text stream
+        The file, or an open text stream (e.g. ``io.StringIO``).
+    columns : mapping or callable
+        Column name -> ``"stamp"`` or ``"number"``; or a function of the :class:`CsvHeader`
+        returning that mapping (it may raise a better-worded error for a header it refuses).
+    name : str, optional
+        The file's name in messages (default: the path).
+    chunk_rows : int
+        Data rows per chunk.
+
+    Returns
+    -------
+    CsvColumns
+
+    Raises
+    ------
+    InputError
+        No header, duplicate column names, a requested column missing, a row with another
+        number of fields than the header, text or an infinity in a number column (one line
+        naming the file and the line).
+    """
+    label = name if name is not None else os.fspath(source) if not hasattr(source, "read") else "<csv>"  # type: ignore[arg-type]
+    comments: list[str] = []
+    header: CsvHeader | None = None
+    wanted: dict[str, ColumnKind] = {}
+    index: list[int] = []
+    parts: list[list[np.ndarray]] = []
+    line_parts: list[np.ndarray] = []
+    n_fields = 0
+    n_commas = 0
+    kept: list[str] = []
+    kept_lines: list[int] = []
+
+    def flush() -> None:
+        if not kept:
+            return
+        lines = np.asarray(kept_lines, dtype=np.int64)
+        parts.append(_chunk_values("".join(kept), index, list(wanted.values()), list(wanted), lines, label))
+        line_parts.append(lines)
+        kept.clear()
+        kept_lines.clear()
+
+    with _text_lines(source) as fh:
+        try:
+            for lineno, line in enumerate(fh, start=1):
+                stripped = line.strip()
+                if not stripped:
+                    continue
+                if stripped[0] == "#":
+                    comments.append(stripped[1:].strip())
+                    continue
+                if header is None:
+                    names = tuple(h.strip() for h in _split_fields(line))
+                    if len(set(names)) != len(names):
+                        raise InputError(f"{label}:{lineno}", "duplicate column names in the header")
+                    header = CsvHeader(label, names, lineno)
+                    wanted = dict(columns(header) if callable(columns) else columns)
+                    missing = [c for c in wanted if c not in names]
+                    if missing:
+                        raise InputError(f"{label}:{lineno}", f"missing column(s) {', '.join(missing)}; found {', '.join(names)}")
+                    index = [names.index(c) for c in wanted]
+                    n_fields, n_commas = len(names), line.count(",")
+                    continue
+                if line.count(",") != n_commas:  # quoted commas are rare: let the csv module decide
+                    fields = len(_split_fields(line))
+                    if fields != n_fields:
+                        raise InputError(f"{label}:{lineno}", f"{fields} fields, but the header (line {header.line}) has {n_fields}")
+                kept.append(line if line.endswith("\n") else line + "\n")
+                kept_lines.append(lineno)
+                if len(kept) >= chunk_rows:
+                    flush()
+        except UnicodeDecodeError as exc:
+            raise InputError(label, f"cannot read as text ({exc})") from None
+        flush()
+    if header is None:
+        raise InputError(label, "no header row (the file is empty or has only comments)")
+    values: dict[str, np.ndarray] = {}
+    for j, column in enumerate(wanted):
+        pieces = [p[j] for p in parts]
+        if not pieces:
+            values[column] = np.empty(0, dtype=np.int64 if wanted[column] == "stamp" else np.float64)
+        elif all(p.dtype.kind == "i" for p in pieces):
+            values[column] = np.concatenate(pieces)
+        else:
+            values[column] = np.concatenate([p.astype(np.float64) for p in pieces])
+    lines = np.concatenate(line_parts) if line_parts else np.empty(0, dtype=np.int64)
+    return CsvColumns(header=header, values=values, lines=lines, comments=tuple(comments))
 
 
 def parse_numeric(
@@ -327,17 +567,20 @@ def _columns(header: list[str], name: str, header_line: int) -> tuple[str, str]:
     return "time_s", force_col  # type: ignore[return-value]
 
 
-def _check_time(time_s: np.ndarray, lines: np.ndarray, name: str) -> None:
-    """Refuse NaN times and times that go backwards (equal times are handled as duplicates)."""
+def _check_time(time_s: np.ndarray, lines: np.ndarray, name: str, label: str = "time_s") -> None:
+    """Refuse NaN times and times that go backwards (equal times are handled as duplicates).
+
+    ``label`` names the time column in messages (``"time_s"``, ``"[force] time_column '%time'"``).
+    """
     if np.isnan(time_s).any():
         i = int(np.argmax(np.isnan(time_s)))
-        raise InputError(f"{name}:{lines[i]}", "time_s is empty or NaN")
+        raise InputError(f"{name}:{lines[i]}", f"{label} is empty or NaN")
     back = np.diff(time_s) < 0
     if back.any():
         i = int(np.argmax(back)) + 1
         raise InputError(
             f"{name}:{lines[i]}",
-            f"time_s goes backwards ({time_s[i]:.6g} s after {time_s[i - 1]:.6g} s on line {lines[i - 1]})",
+            f"{label} goes backwards ({time_s[i]:.6g} s after {time_s[i - 1]:.6g} s on line {lines[i - 1]})",
         )
 
 
@@ -433,6 +676,189 @@ def _unit_warning(column: str, peak_abs: float, cfg: ForceLogConfig) -> str | No
 # --------------------------------------------------------------------------- reader
 
 
+@dataclass(frozen=True)
+class ForceSamples:
+    """A force log's samples before cleaning, in SPEC units, and what to call things in messages.
+
+    Parameters
+    ----------
+    time_s : ndarray
+        Sample times (s; NaN allowed, refused by the cleaning).
+    force_g : ndarray
+        Force (g; NaN where the cell was empty).
+    depth_mm : ndarray
+        Insertion depth (mm; NaN when not logged).
+    lines : ndarray of int
+        1-based line number of each row in the file.
+    name : str
+        The file, for messages and the report.
+    unit : str
+        The force column's unit as written (``"g"``, ``"N"``, ``"mN"``).
+    columns : tuple of str
+        The header's columns.
+    comments : tuple of str
+        Comment lines without their ``#``.
+    time_label, force_label : str
+        How messages name the time and force columns (``"time_s"``, ``"force_g"``, or a log
+        format's ``"[force] column 'field.Fz'"``).
+    check_units : bool
+        Warn when the values look like they are in the other unit (SPEC columns only: a log
+        format states its unit).
+    """
+
+    time_s: np.ndarray
+    force_g: np.ndarray
+    depth_mm: np.ndarray
+    lines: np.ndarray
+    name: str
+    unit: str
+    columns: tuple[str, ...] = ()
+    comments: tuple[str, ...] = ()
+    time_label: str = "time_s"
+    force_label: str = "force_g"
+    check_units: bool = True
+
+
+def clean_force_samples(samples: ForceSamples, cfg: ForceLogConfig = ForceLogConfig()) -> tuple[pd.DataFrame, ForceLogReport]:
+    """Validate and clean a force log's samples (the module table), whatever form it was read from.
+
+    Parameters
+    ----------
+    samples : ForceSamples
+        Times (s), forces (g), depths (mm) and line numbers, as read.
+    cfg : ForceLogConfig
+        Policies.
+
+    Returns
+    -------
+    data : DataFrame
+        :data:`FORCE_LOG_COLUMNS`: ``time_s`` (s, strictly increasing), ``force_g`` (g),
+        ``depth_mm`` (mm, NaN when absent), ``saturated`` (bool), ``line`` (the row's line in
+        the file; for averaged duplicates the first one).
+    report : ForceLogReport
+        What was found and done.
+
+    Raises
+    ------
+    InputError
+        ``"<name>:<line>: <problem>"``, one line, for every refused log.
+    """
+    name, force_col = samples.name, samples.force_label
+    time_s, force, depth, lines = samples.time_s, samples.force_g, samples.depth_mm, samples.lines
+    if time_s.size == 0:
+        raise InputError(name, "no samples (only a header)")
+    _check_time(time_s, lines, name, samples.time_label)
+    n_rows = int(time_s.size)
+    cleaning: list[CleaningStep] = []
+    warnings: list[str] = []
+
+    nan_force = np.isnan(force)
+    if nan_force.any():
+        first = f"{name}:{lines[int(np.argmax(nan_force))]}"
+        if cfg.nan_policy == "error":
+            raise InputError(first, f"{force_col} is empty or NaN")
+        frac = nan_force.mean()
+        if frac > cfg.max_nan_fraction:
+            raise InputError(first, f"{force_col} is empty or NaN in {nan_force.sum()} of {n_rows} rows "
+                                    f"({100 * frac:.0f}% > {100 * cfg.max_nan_fraction:.0f}%)")
+        cleaning.append(CleaningStep("drop_nan", int(nan_force.sum()), _listed(lines[nan_force]),
+                                     f"dropped {int(nan_force.sum())} row(s) with an empty or NaN {force_col}"))
+        keep = ~nan_force
+        time_s, force, depth, lines = time_s[keep], force[keep], depth[keep], lines[keep]
+
+    dup = np.r_[False, np.diff(time_s) == 0]
+    if dup.any():
+        if cfg.duplicate_policy == "error":
+            i = int(np.argmax(dup))
+            raise InputError(f"{name}:{lines[i]}", f"duplicate {samples.time_label} {time_s[i]:.6g} s (also on line {lines[i - 1]})")
+        time_s, force, depth, lines, merged = _average_duplicates(time_s, force, depth, lines)
+        cleaning.append(CleaningStep("average_duplicates", int(merged.size), _listed(merged),
+                                     f"averaged {int(merged.size)} row(s) sharing a timestamp with the row before"))
+
+    if time_s.size < cfg.min_samples:
+        raise InputError(name, f"only {time_s.size} usable sample(s); need at least {cfg.min_samples}")
+
+    dt = np.diff(time_s)
+    period = float(np.median(dt))
+    gap_idx = np.flatnonzero(dt > cfg.gap_factor * period)
+    gaps = tuple((float(time_s[i]), float(time_s[i + 1]), int(lines[i + 1])) for i in gap_idx)
+    if gaps:
+        longest = max(b - a for a, b, _ in gaps)
+        warnings.append(f"{len(gaps)} gap(s) longer than {cfg.gap_factor:g} median sample periods "
+                        f"({period:.4g} s), the first before line {gaps[0][2]}, the longest {longest:.4g} s")
+
+    peak = float(np.max(np.abs(force)))
+    if samples.check_units:
+        unit_note = _unit_warning(force_col, peak / (G_PER_N if force_col == "force_N" else 1.0), cfg)
+        if unit_note:
+            warnings.append(unit_note)
+
+    saturated = find_saturation(force, min_run=cfg.saturation_min_run, sensor_range_g=cfg.sensor_range_g)
+    n_sat = int(saturated.sum())
+    if n_sat:
+        first_line = int(lines[int(np.argmax(saturated))])
+        what = (f"{n_sat} sample(s) look clipped at the sensor's range "
+                f"(|force| = {np.max(np.abs(force[saturated])):.4g} g), first on line {first_line}")
+        if cfg.saturation_policy == "error":
+            raise InputError(f"{name}:{first_line}", what)
+        if cfg.saturation_policy == "drop":
+            cleaning.append(CleaningStep("drop_saturation", n_sat, _listed(lines[saturated]), f"dropped {what}"))
+            keep = ~saturated
+            time_s, force, depth, lines, saturated = time_s[keep], force[keep], depth[keep], lines[keep], saturated[keep]
+            if time_s.size < cfg.min_samples:
+                raise InputError(name, f"only {time_s.size} sample(s) left after dropping clipped ones")
+        else:
+            cleaning.append(CleaningStep("flag_saturation", n_sat, _listed(lines[saturated]),
+                                         f"flagged {what} in column 'saturated'"))
+        warnings.append(what)
+
+    data = pd.DataFrame({"time_s": time_s, "force_g": force, "depth_mm": depth, "saturated": saturated,
+                         "line": lines.astype(int, copy=False)}, copy=False)
+    report = ForceLogReport(
+        path=name,
+        unit=samples.unit,
+        columns=samples.columns,
+        comments=samples.comments,
+        n_rows=n_rows,
+        n_samples=len(data),
+        sample_period_s=period,
+        duration_s=float(time_s[-1] - time_s[0]),
+        peak_abs_g=float(np.max(np.abs(force))) if force.size else math.nan,
+        n_saturated=n_sat,
+        gaps=gaps,
+        cleaning=tuple(cleaning),
+        warnings=tuple(warnings),
+    )
+    return data, report
+
+
+def _spec_columns(header: CsvHeader) -> dict[str, ColumnKind]:
+    """The SPEC §6 columns of a force log's header (time_s, the force column, depth_mm if any)."""
+    time_col, force_col = _columns(list(header.columns), header.name, header.line)
+    wanted: dict[str, ColumnKind] = {time_col: "number", force_col: "number"}
+    if "depth_mm" in header.columns:
+        wanted["depth_mm"] = "number"
+    return wanted
+
+
+def _read_spec_force_log(source: str | os.PathLike | IO[str], name: str, cfg: ForceLogConfig) -> tuple[pd.DataFrame, ForceLogReport]:
+    table = read_csv_columns(source, _spec_columns, name=name)
+    force_col = "force_N" if "force_N" in table.values else "force_g"
+    force = table.values[force_col]
+    samples = ForceSamples(
+        time_s=table.values["time_s"].astype(float),
+        force_g=force * G_PER_N if force_col == "force_N" else force,
+        depth_mm=table.values.get("depth_mm", np.full(table.n_rows, np.nan)),
+        lines=table.lines,
+        name=name,
+        unit="N" if force_col == "force_N" else "g",
+        columns=table.header.columns,
+        comments=table.comments,
+        force_label=force_col,
+    )
+    return clean_force_samples(samples, cfg)
+
+
 def parse_force_log(text: str, *, name: str = "<force log>", cfg: ForceLogConfig = ForceLogConfig()) -> tuple[pd.DataFrame, ForceLogReport]:
     """Parse, validate and clean the text of a force log.
 
@@ -459,115 +885,13 @@ def parse_force_log(text: str, *, name: str = "<force log>", cfg: ForceLogConfig
     InputError
         ``"<name>:<line>: <problem>"``, one line, for every refused log (module table).
     """
-    header, rows, lines, comments = read_table_lines(text, name=name)
-    header_line = _header_line(text)
-    time_col, force_col = _columns(header, name, header_line)
-    if not rows:
-        raise InputError(name, "no samples (only a header)")
-    cols = list(zip(*rows))
-    col = {h: cols[i] for i, h in enumerate(header)}
-    time_s = parse_numeric(col[time_col], lines, column=time_col, name=name)
-    force = parse_numeric(col[force_col], lines, column=force_col, name=name)
-    depth = (parse_numeric(col["depth_mm"], lines, column="depth_mm", name=name) if "depth_mm" in col
-             else np.full(len(rows), np.nan))
-    _check_time(time_s, lines, name)
-    n_rows = len(rows)
-    cleaning: list[CleaningStep] = []
-    warnings: list[str] = []
+    import io
 
-    nan_force = np.isnan(force)
-    if nan_force.any():
-        first = f"{name}:{lines[int(np.argmax(nan_force))]}"
-        if cfg.nan_policy == "error":
-            raise InputError(first, f"{force_col} is empty or NaN")
-        frac = nan_force.mean()
-        if frac > cfg.max_nan_fraction:
-            raise InputError(first, f"{force_col} is empty or NaN in {nan_force.sum()} of {n_rows} rows "
-                                    f"({100 * frac:.0f}% > {100 * cfg.max_nan_fraction:.0f}%)")
-        cleaning.append(CleaningStep("drop_nan", int(nan_force.sum()), _listed(lines[nan_force]),
-                                     f"dropped {int(nan_force.sum())} row(s) with an empty or NaN {force_col}"))
-        keep = ~nan_force
-        time_s, force, depth, lines = time_s[keep], force[keep], depth[keep], lines[keep]
-
-    if force_col == "force_N":
-        force = force * G_PER_N
-
-    dup = np.r_[False, np.diff(time_s) == 0]
-    if dup.any():
-        if cfg.duplicate_policy == "error":
-            i = int(np.argmax(dup))
-            raise InputError(f"{name}:{lines[i]}", f"duplicate time_s {time_s[i]:.6g} s (also on line {lines[i - 1]})")
-        time_s, force, depth, lines, merged = _average_duplicates(time_s, force, depth, lines)
-        cleaning.append(CleaningStep("average_duplicates", int(merged.size), _listed(merged),
-                                     f"averaged {int(merged.size)} row(s) sharing a timestamp with the row before"))
-
-    if time_s.size < cfg.min_samples:
-        raise InputError(name, f"only {time_s.size} usable sample(s); need at least {cfg.min_samples}")
-
-    dt = np.diff(time_s)
-    period = float(np.median(dt))
-    gap_idx = np.flatnonzero(dt > cfg.gap_factor * period)
-    gaps = tuple((float(time_s[i]), float(time_s[i + 1]), int(lines[i + 1])) for i in gap_idx)
-    if gaps:
-        longest = max(b - a for a, b, _ in gaps)
-        warnings.append(f"{len(gaps)} gap(s) longer than {cfg.gap_factor:g} median sample periods "
-                        f"({period:.4g} s), the first before line {gaps[0][2]}, the longest {longest:.4g} s")
-
-    peak = float(np.max(np.abs(force)))
-    unit_note = _unit_warning(force_col, peak / (G_PER_N if force_col == "force_N" else 1.0), cfg)
-    if unit_note:
-        warnings.append(unit_note)
-
-    saturated = find_saturation(force, min_run=cfg.saturation_min_run, sensor_range_g=cfg.sensor_range_g)
-    n_sat = int(saturated.sum())
-    if n_sat:
-        first_line = int(lines[int(np.argmax(saturated))])
-        what = (f"{n_sat} sample(s) look clipped at the sensor's range "
-                f"(|force| = {np.max(np.abs(force[saturated])):.4g} g), first on line {first_line}")
-        if cfg.saturation_policy == "error":
-            raise InputError(f"{name}:{first_line}", what)
-        if cfg.saturation_policy == "drop":
-            cleaning.append(CleaningStep("drop_saturation", n_sat, _listed(lines[saturated]), f"dropped {what}"))
-            keep = ~saturated
-            time_s, force, depth, lines, saturated = time_s[keep], force[keep], depth[keep], lines[keep], saturated[keep]
-            if time_s.size < cfg.min_samples:
-                raise InputError(name, f"only {time_s.size} sample(s) left after dropping clipped ones")
-        else:
-            cleaning.append(CleaningStep("flag_saturation", n_sat, _listed(lines[saturated]),
-                                         f"flagged {what} in column 'saturated'"))
-        warnings.append(what)
-
-    data = pd.DataFrame({"time_s": time_s, "force_g": force, "depth_mm": depth, "saturated": saturated,
-                         "line": lines.astype(int)})
-    report = ForceLogReport(
-        path=name,
-        unit="N" if force_col == "force_N" else "g",
-        columns=tuple(header),
-        comments=tuple(comments),
-        n_rows=n_rows,
-        n_samples=len(data),
-        sample_period_s=period,
-        duration_s=float(time_s[-1] - time_s[0]),
-        peak_abs_g=float(np.max(np.abs(force))) if force.size else math.nan,
-        n_saturated=n_sat,
-        gaps=gaps,
-        cleaning=tuple(cleaning),
-        warnings=tuple(warnings),
-    )
-    return data, report
-
-
-def _header_line(text: str) -> int:
-    """1-based line number of the first non-blank, non-comment line."""
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return lineno
-    return 1
+    return _read_spec_force_log(io.StringIO(text), name, cfg)
 
 
 def read_force_log(path: str | os.PathLike, cfg: ForceLogConfig = ForceLogConfig()) -> tuple[pd.DataFrame, ForceLogReport]:
-    """Read, validate and clean a force log file (SPEC §6).
+    """Read, validate and clean a force log file (SPEC §6), in chunks (:func:`read_csv_columns`).
 
     Parameters
     ----------
@@ -593,8 +917,4 @@ def read_force_log(path: str | os.PathLike, cfg: ForceLogConfig = ForceLogConfig
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "no such force log" if not p.exists() else "force log is not a file")
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(p, f"cannot read force log ({type(exc).__name__}: {exc})") from None
-    return parse_force_log(text, name=str(p), cfg=cfg)
+    return _read_spec_force_log(p, str(p), cfg)

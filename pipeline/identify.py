@@ -73,6 +73,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
+from pipeline.data_needs import require
 from vision.errors import InputError
 from vision.geometry import DEFAULT_PHANTOM, Phantom
 
@@ -770,6 +771,8 @@ def fit_synced(
         raise ValueError(f"unknown parameter(s) to hold: {', '.join(sorted(unknown))}")
     base_flat.update({k: float(v) for k, v in options.fixed.items()})
     free_requested = [n for n in options.free if n not in options.fixed]
+    if all(c in table.columns for c in SYNCED_COLUMNS):  # a tip-only angle track: say so in one line
+        require(table, source, "the friction-model fit")
     data, notes = validate_synced(table, source, min_rows=max(options.min_rows, len(free_requested) + 2),
                                   moving_only=options.moving_only)
     speeds = data["speed_mm_s"].to_numpy(float)

@@ -33,6 +33,7 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
+from pipeline.data_needs import NotEnoughData
 from vision.errors import InputError, is_input_error, one_line
 
 __all__ = ["RunConfig", "RunResult", "StageRecord", "run_pipeline", "is_fresh", "RUN_JSON", "TRIALS_CSV"]
@@ -96,6 +97,8 @@ class RunConfig:
         or None for no overlay.
     fps : float or None
         Frame rate (frames/s) for videos whose manifest row gives none (folders of frames).
+    log_format : str or None
+        Log format file (SPEC §6) for the manifest rows whose ``format`` cell is blank.
     """
 
     workers: int = 1
@@ -108,6 +111,7 @@ class RunConfig:
     diagnosis: Any = field(default_factory=_default_diagnosis)
     scenario: str | None = "S4"
     fps: float | None = None
+    log_format: str | None = None
 
 
 @dataclass
@@ -280,16 +284,17 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
 
     table, report = out / "synced.csv", report_path(out / "synced.csv")
     angles_dir = out / "angles"
-    inputs = [manifest_path, *[Path(p) for p in manifest["force"].dropna()],
-              *[Path(p) for p in manifest["angles"].dropna()],
+    logs = [Path(p) for col in ("force", "angles", "depth", "format") if col in manifest.columns
+            for p in manifest[col].dropna() if p]
+    inputs = [manifest_path, *logs, *([Path(cfg.log_format)] if cfg.log_format else []),
               *[angles_dir / f"{t}.angles.csv" for t in manifest.loc[manifest["angles"].isna(), "trial"]]]
-    rec.settings = _settings(cfg.sync)
+    rec.settings = _settings(cfg.sync, cfg.log_format)
     if _up_to_date("sync", [table, report], inputs, rec.settings, previous, cfg):
         rec.status = "skipped"
         info = json.loads(report.read_text(encoding="utf-8"))
     else:
         def work() -> dict:
-            result = sync_manifest(manifest_path, cfg=cfg.sync, angles_dir=angles_dir)
+            result = sync_manifest(manifest_path, cfg=cfg.sync, angles_dir=angles_dir, log_format=cfg.log_format)
             if not any(t.status == "ok" for t in result.trials):
                 _remove([table])
             _, rpath = write_sync(result, table, cfg=cfg.sync)
@@ -320,12 +325,16 @@ def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previou
         return
 
     def work() -> None:
-        result = fit_synced(read_synced(synced_path), cfg.fit, source=synced_path)
+        try:
+            result = fit_synced(read_synced(synced_path), cfg.fit, source=synced_path)
+        except NotEnoughData as exc:  # e.g. a tip-only angle track: say what the data lack, do not fail the run
+            _remove([fit_dir / "fit.json", fit_dir / "fit_residuals.csv"])
+            rec.status, rec.message = "not_run", exc.problem
+            return
         write_fit(result, fit_dir, source=synced_path)
-        rec.message = f"n={result.n}, RMSE {result.rmse_g:.3g} g, stderr {result.se_method}"
+        rec.status, rec.message = "ok", f"n={result.n}, RMSE {result.rmse_g:.3g} g, stderr {result.se_method}"
 
     _timed(rec, work)
-    rec.status = "ok"
 
 
 def _simulated(scenario: str | None) -> Callable | None:
@@ -388,7 +397,8 @@ def _diagnose(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, pr
             diag = diagnose(table, cfg.diagnosis, source=synced_path)
         except InputError as exc:  # the data cannot support a diagnosis: say so, do not fail the run
             _remove([ddir / "diagnosis.json", ddir / "diagnosis.md"])
-            rec.status, rec.message = "not_run", f"the data cannot support a diagnosis: {exc.problem}"
+            rec.status = "not_run"
+            rec.message = exc.problem if isinstance(exc, NotEnoughData) else f"the data cannot support a diagnosis: {exc.problem}"
             return
         write_diagnosis(diag, ddir, source=synced_path)
         rec.status, rec.message = "ok", summary_line(diag).removeprefix("diagnose: ")
@@ -502,6 +512,10 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     t_start = time.perf_counter()
     mpath = Path(manifest)
     table = read_manifest(mpath)
+    if cfg.log_format is not None:
+        from pipeline.logformat import read_log_format
+
+        read_log_format(cfg.log_format)  # a bad --format is one error before anything runs
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     previous = _previous(out)
@@ -553,7 +567,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     trials = trials_table(table, out, extract, sync_info)
     atomic_write_csv(out / TRIALS_CSV, trials)
     record = provenance(mpath, {"workers": cfg.workers, "overwrite": cfg.overwrite, "scenario": cfg.scenario,
-                                "fps": cfg.fps},
+                                "fps": cfg.fps, "log_format": cfg.log_format},
                         command=list(command) if command is not None else None,
                         manifest=str(mpath.resolve()), out=str(out.resolve()),
                         stages={k: dataclasses.asdict(v) for k, v in stages.items()},

@@ -10,6 +10,13 @@ stacks the trials into one table::
 
 ``time_s`` is the force clock; ``video_time_s = time_s - sync_offset_s``.
 
+A lab's own logs (epoch stamps, newtons with a sign and a gain, a depth log of the robot's stage,
+another tracker's angle track) are read through a log format file (:mod:`pipeline.logformat`,
+:mod:`pipeline.labstreams`): the manifest's ``format`` column or ``log_format`` for the rows
+without one. A depth log (manifest column ``depth``) fills ``depth_mm``; another tracker's track
+brings its own offset (its ``zero``: the force log's clock, the depth log's motion start, or a
+number of seconds) instead of the estimate below. ``docs/lab-logs.md`` works through an example.
+
 The offset
 ----------
 ``video_t0_s`` from the manifest is used when the trial's cell is filled in (``t0="auto"``,
@@ -73,7 +80,10 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
-from pipeline.forcelog import ForceLogConfig, parse_numeric, read_force_log, read_table_lines
+from pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
+from pipeline.labstreams import read_lab_logs, track_coverage
+from pipeline.logformat import LogFormat, read_log_format
+from pipeline.motion import Motion
 from vision.errors import InputError, is_input_error, one_line
 
 __all__ = [
@@ -250,6 +260,16 @@ class TrialSync:
         The force log's :class:`~pipeline.forcelog.ForceLogReport` as a dict.
     warnings : tuple of str
         One-line warnings.
+    format_path : str or None
+        The log format file the trial was read through (SPEC §6), if any.
+    depth_path : str or None
+        Its depth log, if any.
+    depth : dict or None
+        The depth log's summary (:meth:`pipeline.labstreams.DepthLog.summary`): samples, span and
+        the motion start and stop found (s on the force clock, with their uncertainties).
+    clock_origin : str or None
+        With a ``[force]`` format: the force log's first stamp as written (``time_s`` counts
+        from it).
     """
 
     trial: str
@@ -267,6 +287,10 @@ class TrialSync:
     force_path: str | None = None
     force_report: dict | None = None
     warnings: tuple[str, ...] = ()
+    format_path: str | None = None
+    depth_path: str | None = None
+    depth: dict | None = None
+    clock_origin: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -276,6 +300,7 @@ class SyncResult:
     table: pd.DataFrame
     trials: tuple[TrialSync, ...]
     manifest: str = ""
+    log_format: str | None = None
 
     @property
     def failed(self) -> tuple[TrialSync, ...]:
@@ -826,39 +851,75 @@ def _angles_path(row: pd.Series, angles_dir: Path, where: str) -> Path:
     return p
 
 
-def _one_trial(row: pd.Series, t0_given: bool, angles_dir: Path, mpath: Path, cfg: SyncConfig) -> tuple[pd.DataFrame, TrialSync]:
+def _row_format(row: pd.Series, default: LogFormat | None) -> LogFormat | None:
+    """The log format of a manifest row: its ``format`` cell, else the command's ``--format``."""
+    cell = row.get("format")
+    if isinstance(cell, str) and cell:
+        return read_log_format(cell)
+    return default
+
+
+def _speed_note(motion: Motion, speed_mm_s: float) -> list[str]:
+    """A warning when the depth log's speed is not the manifest's (more than 5 % apart)."""
+    if not (math.isfinite(motion.speed_mm_s) and speed_mm_s > 0):
+        return []
+    ratio = abs(motion.speed_mm_s) / speed_mm_s
+    if abs(ratio - 1.0) <= 0.05:
+        return []
+    return [f"the depth log moves at {abs(motion.speed_mm_s):.3g} mm/s, the manifest says {speed_mm_s:g} mm/s"]
+
+
+def _one_trial(row: pd.Series, t0_given: bool, angles_dir: Path, mpath: Path, cfg: SyncConfig,
+               default_format: LogFormat | None = None) -> tuple[pd.DataFrame, TrialSync]:
     where = f"{mpath}:{int(row['line'])}"
     trial = str(row["trial"])
     force_file = row.get("force")
-    if not force_file or not Path(force_file).is_file():
+    if not force_file or not Path(force_file).exists():
         raise InputError(where, f"force log {str(force_file)!r} not found")
-    angles_file = _angles_path(row, angles_dir, where)
-    force, report = read_force_log(force_file, cfg.force_log)
-    angles = read_angles_table(angles_file)
-    warnings = [*angles.attrs.get("warnings", []), *report.warnings]
-    if not angles["ok"].any():
-        raise InputError(angles_file, "no frame was measured (every ok is false)")
-    use_manifest = cfg.t0 == "manifest" or (cfg.t0 == "auto" and t0_given)
+    fmt = _row_format(row, default_format)
+    depth_file = row.get("depth") if isinstance(row.get("depth"), str) and row.get("depth") else None
+    tracker = fmt is not None and fmt.angles is not None and bool(row.get("angles"))
+    logs = read_lab_logs(force_file, fmt=fmt, depth_path=depth_file, angles_path=row["angles"] if tracker else None,
+                         cfg=cfg.force_log)
+    force, report = logs.force, logs.force_report
+    warnings = [*report.warnings, *logs.warnings]
     estimate: OffsetEstimate | None = None
-    if use_manifest:
-        offset, unc, method = float(row["video_t0_s"]), 0.0, "manifest"
-        if cfg.check_manifest_t0:
-            try:
-                estimate = estimate_offset(angles, force, cfg=cfg, where=where)
-            except InputError as exc:
-                warnings.append(f"could not check video_t0_s against the data: {exc.problem}")
-            if estimate is not None:
-                tol = 3 * estimate.uncertainty_s + estimate.frame_period_s
-                if abs(estimate.offset_s - offset) > tol:
-                    warnings.append(f"video_t0_s {offset:.4g} s disagrees with the data's estimate "
-                                    f"{estimate.offset_s:.4g} ± {estimate.uncertainty_s:.2g} s")
+    if logs.track is not None:
+        angles_file = Path(row["angles"])
+        angles = logs.track.angles
+        warnings = [*angles.attrs.get("warnings", []), *warnings]
+        offset, unc, method = logs.track.offset_s, logs.track.uncertainty_s, f"format:{logs.track.zero}"
+        warnings.extend(track_coverage(logs.track, force["time_s"].to_numpy(float), trial=trial, depth=logs.depth))
+        if t0_given:
+            warnings.append("video_t0_s was not used: the log format's [angles] zero gives the offset")
     else:
-        estimate = estimate_offset(angles, force, cfg=cfg, where=where)
-        offset, unc, method = estimate.offset_s, estimate.uncertainty_s, f"estimate:{estimate.signal}"
-        warnings.extend(estimate.warnings)
+        angles_file = _angles_path(row, angles_dir, where)
+        angles = read_angles_table(angles_file)
+        warnings = [*angles.attrs.get("warnings", []), *warnings]
+        if not angles["ok"].any():
+            raise InputError(angles_file, "no frame was measured (every ok is false)")
+        use_manifest = cfg.t0 == "manifest" or (cfg.t0 == "auto" and t0_given)
+        if use_manifest:
+            offset, unc, method = float(row["video_t0_s"]), 0.0, "manifest"
+            if cfg.check_manifest_t0:
+                try:
+                    estimate = estimate_offset(angles, force, cfg=cfg, where=where)
+                except InputError as exc:
+                    warnings.append(f"could not check video_t0_s against the data: {exc.problem}")
+                if estimate is not None:
+                    tol = 3 * estimate.uncertainty_s + estimate.frame_period_s
+                    if abs(estimate.offset_s - offset) > tol:
+                        warnings.append(f"video_t0_s {offset:.4g} s disagrees with the data's estimate "
+                                        f"{estimate.offset_s:.4g} ± {estimate.uncertainty_s:.2g} s")
+        else:
+            estimate = estimate_offset(angles, force, cfg=cfg, where=where)
+            offset, unc, method = estimate.offset_s, estimate.uncertainty_s, f"estimate:{estimate.signal}"
+            warnings.extend(estimate.warnings)
+    if logs.depth is not None:
+        warnings.extend(_speed_note(logs.depth.motion, float(row["speed_mm_s"])))
     table = sync_trial(angles, force, trial=trial, speed_mm_s=float(row["speed_mm_s"]), offset_s=offset,
                        uncertainty_s=unc, max_gap_frames=cfg.max_gap_frames)
-    n_with = int(table["theta_con"].notna().sum())
+    n_with = int(table["theta_tip"].notna().sum())
     if n_with == 0:
         raise InputError(where, f"no force sample falls within the measured frames (offset {offset:.4g} s); "
                                 "check video_t0_s")
@@ -866,6 +927,9 @@ def _one_trial(row: pd.Series, t0_given: bool, angles_dir: Path, mpath: Path, cf
         trial=trial, line=int(row["line"]), status="ok", method=method, offset_s=offset, uncertainty_s=unc,
         estimate=estimate, n_samples=len(table), n_with_angles=n_with, angles_path=str(angles_file),
         force_path=str(force_file), force_report=report.to_dict(), warnings=tuple(warnings),
+        format_path=fmt.path if fmt is not None else None, depth_path=depth_file,
+        depth=logs.depth.summary() if logs.depth is not None else None,
+        clock_origin=logs.clock.origin or None,
     )
     return table, info
 
@@ -875,6 +939,7 @@ def sync_manifest(
     *,
     cfg: SyncConfig = SyncConfig(),
     angles_dir: str | os.PathLike | None = None,
+    log_format: str | os.PathLike | None = None,
 ) -> SyncResult:
     """Sync every trial of a manifest; a bad trial is recorded and the others go on.
 
@@ -887,6 +952,9 @@ def sync_manifest(
     angles_dir : str or PathLike, optional
         Folder of ``<trial>.angles.csv`` for trials whose manifest row names no ``angles``
         table (the ``--out`` of ``tympani extract``); default: the manifest's folder.
+    log_format : str or PathLike, optional
+        A log format file (SPEC §6, :mod:`pipeline.logformat`) for the rows whose ``format``
+        cell is blank; without either, the logs are read in SPEC form.
 
     Returns
     -------
@@ -897,12 +965,13 @@ def sync_manifest(
     Raises
     ------
     InputError
-        The manifest itself is unusable (missing, bad header, bad value); a bad trial only
-        marks that trial failed.
+        The manifest itself or ``log_format`` is unusable (missing, bad header, bad value); a
+        bad trial (its logs, or its own format file) only marks that trial failed.
     """
     from pipeline.batch import read_manifest
 
     mpath = Path(manifest)
+    default_format = read_log_format(log_format) if log_format is not None else None
     table = read_manifest(mpath, check_files=False)
     t0_cells = _manifest_t0_cells(mpath)
     adir = Path(angles_dir) if angles_dir is not None else mpath.resolve().parent
@@ -910,7 +979,7 @@ def sync_manifest(
     for _, row in table.iterrows():
         line = int(row["line"])
         try:
-            part, info = _one_trial(row, bool(t0_cells.get(line)), adir, mpath, cfg)
+            part, info = _one_trial(row, bool(t0_cells.get(line)), adir, mpath, cfg, default_format)
         except Exception as exc:  # one bad trial never stops the others
             kind = "input" if is_input_error(exc) else "error"
             text = one_line(exc) if kind == "input" else f"{mpath}:{line}: {one_line(exc)}"
@@ -920,7 +989,8 @@ def sync_manifest(
         infos.append(info)
     columns = [*SYNC_COLUMNS, *SYNC_EXTRA_COLUMNS]
     out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=columns)
-    return SyncResult(table=out[columns], trials=tuple(infos), manifest=str(mpath))
+    return SyncResult(table=out[columns], trials=tuple(infos), manifest=str(mpath),
+                      log_format=str(log_format) if log_format is not None else None)
 
 
 def report_path(out: str | os.PathLike) -> Path:
@@ -961,6 +1031,7 @@ def write_sync(result: SyncResult, out: str | os.PathLike, *, cfg: SyncConfig = 
         "manifest": str(Path(result.manifest).resolve()) if result.manifest else None,
         "table": str(Path(out).resolve()) if table_path else None,
         "config": cfg,
+        "log_format": str(Path(result.log_format).resolve()) if result.log_format else None,
         "n_ok": sum(t.status == "ok" for t in result.trials),
         "n_failed": len(result.failed),
         "trials": list(result.trials),

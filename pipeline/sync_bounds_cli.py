@@ -32,7 +32,10 @@ SYNC_DESCRIPTION = (
     "force-log cleaning, warnings per trial) to <stem>.sync.json beside it. The offset is the manifest's "
     "video_t0_s when the trial's cell is filled in, otherwise estimated from the data (depth_mm against "
     "theta_tip when the log has depth, else force_g against theta_con). Angles tables come from the manifest's "
-    "angles column or <angles-dir>/<trial>.angles.csv. A bad trial is reported on stderr and the others are "
+    "angles column or <angles-dir>/<trial>.angles.csv. A lab's own logs (epoch stamps, newtons, a sign and a gain, "
+    "a separate depth log of the robot's stage, another tracker's angles) are read through a log format file: "
+    "--format FILE or the manifest's format column; a depth log (manifest column depth) adds depth_mm and its "
+    "motion start, which can be the angle track's zero. A bad trial is reported on stderr and the others are "
     "still written; exit 2 if any trial failed."
 )
 BOUNDS_HELP = "Eq. (8)-(9) fits with 95%% bounds per speed"  # argparse %-formats help
@@ -66,6 +69,9 @@ def configure_sync(p: argparse.ArgumentParser) -> None:
                    help="what the estimate aligns: depth_mm vs theta_tip, force_g vs theta_con, or auto (depth if logged)")
     p.add_argument("--max-gap-frames", type=positive_float, default=3.0, metavar="F",
                    help="do not interpolate angles across more than F frame periods between measured frames (default 3)")
+    p.add_argument("--format", metavar="FILE", dest="log_format",
+                   help="log format file (TOML) saying how the lab's own force, depth and angle logs are read, for "
+                        "the manifest rows whose 'format' cell is blank (default: logs in tympani's own form)")
 
 
 def run_sync(args: argparse.Namespace) -> int:
@@ -76,7 +82,7 @@ def run_sync(args: argparse.Namespace) -> int:
     if args.max_gap_frames < 1:
         raise InputError("--max-gap-frames", "must be >= 1")
     cfg = SyncConfig(t0=args.t0, signal=args.signal, max_gap_frames=args.max_gap_frames)
-    result = sync_manifest(args.manifest, cfg=cfg, angles_dir=args.angles_dir)
+    result = sync_manifest(args.manifest, cfg=cfg, angles_dir=args.angles_dir, log_format=args.log_format)
     table_path, report = write_sync(result, args.out, cfg=cfg)
     for t in result.failed:
         print(f"tympani: {t.error}", file=sys.stderr)
@@ -90,6 +96,14 @@ def run_sync(args: argparse.Namespace) -> int:
             unc = f" ± {t.uncertainty_s:.2g} s" if t.uncertainty_s else ""
             print(f"  {t.trial}: video_t0_s {t.offset_s:.4g} s{unc} ({t.method}); "
                   f"{t.n_with_angles}/{t.n_samples} samples with angles")
+            if t.depth is not None:
+                m = t.depth["motion"]
+                stop = (f"stops at {m.stop_s:.4g} s ± {m.stop_uncertainty_s:.2g} s" if m.stopped
+                        else f"still moves when its log ends at {m.stop_s:.4g} s")
+                print(f"    depth log: the stage starts at {m.start_s:.4g} s ± {m.start_uncertainty_s:.2g} s and {stop}; "
+                      f"{m.travel_mm:.4g} mm at {m.speed_mm_s:.3g} mm/s")
+            for warning in t.warnings:
+                print(f"    warning: {warning}")
     if any(t.error_kind == "error" for t in result.failed):
         return 1
     return 2 if result.failed else 0

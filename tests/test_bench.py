@@ -92,13 +92,19 @@ def test_run_bench_all_sections_at_tiny_sizes(tiny_video):
                      "extraction short", "extraction long", "diagnosis", "batch workers", "bench total"):
         assert fragment in text, fragment
     assert "FAILED" not in text
+    # log reading: a 50,000-row ROS force CSV, read in its own process
+    logs = result["logs"]
+    assert logs["rows"] == logs["samples"] == 50_000 and _finite_positive(logs["seconds"])
+    assert 0 < logs["import_rss_mib"] <= logs["peak_rss_mib"] < 4096 and logs["file_mib"] > 5
+    assert "log reading" in text and "50,000-row ROS force CSV" in text
 
 
 def test_bench_command_skips_sections(capsys, tiny_video):
-    code = main(["bench", "--video", str(tiny_video), "--quick", "--skip", "memory,diagnosis,workers"])
+    code = main(["bench", "--video", str(tiny_video), "--quick", "--skip", "memory,diagnosis,workers,logs"])
     out, err = capsys.readouterr()
     assert code == 0 and "% of decode speed" in out and "bench total" in out
     assert "extraction short" not in out and "batch workers" not in out and "diagnosis " not in out
+    assert "log reading" not in out
 
 
 def test_render_bench_video_size_keeps_the_phantom(tmp_path):

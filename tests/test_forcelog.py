@@ -229,3 +229,78 @@ def test_config_is_validated():
         ForceLogConfig(nan_policy="ignore")
     with pytest.raises(ValueError):
         ForceLogConfig(gap_factor=1.0)
+
+
+# --------------------------------------------------------------------------- chunked reading
+
+
+def test_read_csv_columns_in_small_chunks_keeps_lines_and_exact_stamps(tmp_path):
+    from pipeline.forcelog import read_csv_columns
+
+    e = 1_566_497_791_436_127_452
+    lines = ["# a ROS log", "%time,field.Fx,field.Fz"]
+    for i in range(250):
+        if i % 60 == 7:
+            lines += ["", "# a comment between rows"]
+        lines.append(f'{e + 20_000_000 * i + i % 3},"{i}",{-0.001 * i:.6f}')
+    path = tmp_path / "ros.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    table = read_csv_columns(path, {"%time": "stamp", "field.Fz": "number"}, chunk_rows=16)
+    t = table.values["%time"]
+    assert t.dtype == np.int64 and t.size == 250 and table.n_rows == 250
+    np.testing.assert_array_equal(t - e, 20_000_000 * np.arange(250) + np.arange(250) % 3)
+    np.testing.assert_allclose(table.values["field.Fz"], -0.001 * np.arange(250))
+    expected = [n for n, line in enumerate(lines, start=1) if line and not line.startswith(("#", "%"))]
+    np.testing.assert_array_equal(table.lines, expected)
+    assert table.comments == ("a ROS log",) + ("a comment between rows",) * 5
+    assert table.header.columns == ("%time", "field.Fx", "field.Fz") and table.header.line == 2
+
+
+def test_read_csv_columns_names_the_line_of_a_bad_cell_in_a_later_chunk(tmp_path):
+    from pipeline.forcelog import read_csv_columns
+
+    rows = [f"{i},{0.5 * i}" for i in range(100)]
+    for i, bad, message in ((70, "70,abc", "t.csv:72: f 'abc' is not a number"), (55, "55,-inf", "t.csv:57: f '-inf' is not finite"),
+                            (90, "90,1,2", "t.csv:92: 3 fields, but the header (line 1) has 2")):
+        text = "\n".join(["t,f", *rows[:i], bad, *rows[i + 1:]]) + "\n"
+        (tmp_path / "t.csv").write_text(text, encoding="utf-8")
+        with pytest.raises(InputError) as info:
+            read_csv_columns(tmp_path / "t.csv", {"t": "stamp", "f": "number"}, chunk_rows=8, name="t.csv")
+        assert str(info.value) == message
+
+
+def test_read_csv_columns_stamps_with_decimals_or_gaps_become_floats(tmp_path):
+    from pipeline.forcelog import read_csv_columns
+
+    text = "t,f\n" + "".join(f"{i},{i}\n" for i in range(20)) + "20.5,1\n21,\n,3\n"
+    (tmp_path / "t.csv").write_text(text, encoding="utf-8")
+    table = read_csv_columns(tmp_path / "t.csv", {"t": "stamp", "f": "number"}, chunk_rows=8)
+    t = table.values["t"]
+    assert t.dtype == np.float64 and t[20] == 20.5 and np.isnan(t[22]) and np.isnan(table.values["f"][21])
+    text = 'a,"b,c"\n1,"2,5"\n3,"4,5"\n'  # a quoted comma is one field
+    (tmp_path / "q.csv").write_text(text, encoding="utf-8")
+    assert read_csv_columns(tmp_path / "q.csv", {"a": "stamp"}).values["a"].tolist() == [1, 3]
+    with pytest.raises(InputError, match=r"q\.csv:1: missing column\(s\) z; found a, b,c"):
+        read_csv_columns(tmp_path / "q.csv", {"z": "number"})
+
+
+def test_a_big_log_is_read_in_bounded_memory(tmp_path):
+    """300,000 rows (35 MB): the arrays the reader holds at its peak stay well below the file's
+    size; reading the whole text and splitting it into rows held about ten times the file."""
+    import tracemalloc
+
+    from pipeline.labstreams import read_force_stream
+    from pipeline.logbench import ROS_FORMAT, write_ros_force_csv
+    from pipeline.logformat import parse_log_format
+
+    path = write_ros_force_csv(tmp_path / "big.csv", 300_000, seed=1)
+    size = path.stat().st_size
+    fmt = parse_log_format(ROS_FORMAT).force
+    tracemalloc.start()
+    try:
+        data, report, clock = read_force_stream(path, fmt)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert len(data) == report.n_rows == 300_000 and data["time_s"].iloc[0] == 0.0
+    assert peak < 0.75 * size, (peak / 1e6, size / 1e6)
