@@ -100,6 +100,7 @@ __all__ = [
     "write_bounds",
     "single_trial_speeds",
     "quote",
+    "form_label",
 ]
 
 #: Angles Eq. (8) may be fitted against.
@@ -116,6 +117,11 @@ FORMS: dict[str, tuple[int, str]] = {
 }
 
 _SE_METHODS = ("auto", "cluster", "effective_n", "ols")
+
+
+def form_label(form: str) -> str:
+    """A form's name for people: ``"Eq. (9)"`` for the paper's, else the key of :data:`FORMS`."""
+    return "Eq. (9)" if form == "eq9" else form
 
 
 @dataclass(frozen=True)
@@ -381,6 +387,25 @@ def _fit_quasi(
     return beta, var_coef, dispersion * scale * bread, rho, n_eff, max((n_eff if scale != 1.0 else n) - p, 1.0)
 
 
+def _satterthwaite_df(resid: np.ndarray, codes: np.ndarray, n_groups: int, df_within: float) -> float:
+    """Degrees of freedom of a residual variance made of a between-trial and a within-trial part.
+
+    The between-trial part (the variance of the trials' mean residuals) is known from
+    ``n_groups - 1`` degrees of freedom, the within-trial part from ``df_within``; Satterthwaite's
+    approximation weighs them by their shares. One trial: ``df_within``.
+    """
+    if n_groups < 2:
+        return df_within
+    counts = np.bincount(codes, minlength=n_groups).astype(float)
+    means = np.bincount(codes, weights=resid, minlength=n_groups) / np.maximum(counts, 1.0)
+    between = float(np.var(means, ddof=1))
+    within = float(np.mean((resid - means[codes]) ** 2))
+    total = between + within
+    if total <= 0:
+        return df_within
+    return float(total**2 / (between**2 / (n_groups - 1) + within**2 / df_within))
+
+
 def _lag1_within(resid: np.ndarray, groups: np.ndarray) -> float:
     """Pooled lag-1 autocorrelation of residuals within groups (rows in time order)."""
     same = groups[1:] == groups[:-1]
@@ -467,12 +492,16 @@ def fit_log_model(
         n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
         cov, df = _covariance(X, resid, codes, labels.size, method, n_eff)
         var_coef: tuple[float, ...] = (math.log(max(float(resid @ resid) / max(n - p, 1), 1e-300)),)
+        scaled = resid
     else:
         coef, var_coef, cov, rho, n_eff, df = _fit_quasi(X, np.exp(y), coef, g, codes, labels.size, method)
+        mu = np.exp(np.clip(X @ coef, -50.0, 50.0))
+        scaled = (np.exp(y) - mu) / np.sqrt(np.maximum(var_coef[0] * mu * mu + var_coef[1], 1e-12))
+    df_pred = _satterthwaite_df(scaled, codes, labels.size, max(n_eff - p, 1.0))
     return LogModel(
         form=form, degree=degree, variance=variance, centre=centre, half_range=half,
         coef=tuple(float(c) for c in np.ravel(coef)), cov=tuple(tuple(float(c) for c in row) for row in cov),
-        var_coef=var_coef, df_pred=max(min(n_eff - p, labels.size - 1.0), 1.0), df=df, se_method=method, n=n, n_trials=int(labels.size),
+        var_coef=var_coef, df_pred=df_pred, df=df, se_method=method, n=n, n_trials=int(labels.size),
         rho=rho, n_eff=float(n_eff), theta_min=lo, theta_max=hi,
     )
 
@@ -746,7 +775,9 @@ def _choose(scores: Sequence[FormScore], cfg: BoundsConfig) -> tuple[FormScore |
     measured = [s for s in scores if s.coverage is not None]
     if not measured:
         return None, False
-    holding = [s for s in measured if abs(s.coverage - cfg.level) <= cfg.coverage_tol]  # type: ignore[operator]
+    upper = (1.0 - cfg.level) / 2.0 + cfg.coverage_tol / 3.0
+    holding = [s for s in measured if abs(s.coverage - cfg.level) <= cfg.coverage_tol  # type: ignore[operator]
+               and s.above <= upper]  # type: ignore[operator]
     if holding:
         return min(holding, key=lambda s: (s.mean_width_g, s.form)), True
     return min(measured, key=lambda s: (abs(s.coverage - cfg.level), s.mean_width_g, s.form)), False  # type: ignore[operator]

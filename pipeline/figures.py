@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from pipeline.bounds import SpeedFit, bands  # noqa: E402
+from pipeline.bounds import SpeedFit, bands, form_label  # noqa: E402
 
 __all__ = ["Simulated", "simulated_table", "plot_force_vs_theta_con", "plot_log_force", "plot_bounds", "write_figures"]
 
@@ -66,7 +66,8 @@ def _thin(df: pd.DataFrame, limit: int = _MAX_POINTS) -> pd.DataFrame:
 
 def _panels(n: int, *, sharey: bool = False):
     rows, cols = _grid(n)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), squeeze=False, sharey=sharey)
+    fig, axes = plt.subplots(rows, cols, figsize=(max(4.2 * cols, 6.4), max(3.4 * rows, 4.4 if n == 1 else 0.0)),
+                             squeeze=False, sharey=sharey)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     return fig, axes.ravel()[:n]
@@ -216,7 +217,7 @@ def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.P
         ax.plot(b[fit.angle], b["f_fit_g"], "--", color="tab:orange", lw=1.2, label=f"exp(c1·{sym} + c2)")
         ax.plot(b[fit.angle], b["rec_lo_g"], "-", color="tab:blue", lw=1.3)
         ax.plot(b[fit.angle], b["rec_hi_g"], "-", color="tab:blue", lw=1.8,
-                label=f"recommended: {fit.recommended.form} (held-out {_pct(fit.heldout_coverage)})")
+                label=f"recommended: {form_label(fit.recommended.form)} (held-out {_pct(fit.heldout_coverage)})")
         ax.plot(b[fit.angle], b["rec_fit_g"], ":", color="tab:blue", lw=1.2)
         top = 1.25 * max(float(np.nanmax(part["force_g"])) if len(part) else 0.0, float(b["rec_hi_g"].max()), 1e-3)
         ax.set_ylim(0.0, top)
@@ -229,7 +230,7 @@ def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.P
         ax.set_ylabel("force (g)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6.5, loc="upper left")
-    fig.suptitle("Safety bounds: Eq. (9) and the recommended bound, 95 % prediction bands")
+    fig.suptitle("Safety bounds: Eq. (9) and the recommended bound (95 % prediction bands)", fontsize=10)
     return _save(fig, path)
 
 

@@ -322,7 +322,8 @@ def _bounds(data: dict) -> str:
         lof = r.get("lack_of_fit") or {}
         rec = r.get("recommended") or {}
         rows.append([r["speed_mm_s"], _pm(r["c1"], r["c1_se"]), _pm(r["c2"], r["c2_se"]), r["n"], r.get("n_trials"),
-                     _share(r.get("heldout_coverage_eq9")), str(rec.get("form", "")), _share(r.get("heldout_coverage")),
+                     _share(r.get("heldout_coverage_eq9")),
+                     "Eq. (9)" if rec.get("form") == "eq9" else str(rec.get("form", "")), _share(r.get("heldout_coverage")),
                      "–" if not lof else _p_value(lof["p_value"]) + (" (concave)" if lof.get("rejects_eq8") and
                                                                      lof["curvature_per_rad2"] < 0 else
                                                                      " (convex)" if lof.get("rejects_eq8") else "")])

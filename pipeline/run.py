@@ -27,13 +27,13 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from pipeline.data_needs import NotEnoughData
+from pipeline.data_needs import NotEnoughData, has_contact_angles
 from vision.errors import InputError, is_input_error, one_line
 
 __all__ = ["RunConfig", "RunResult", "StageRecord", "run_pipeline", "is_fresh", "RUN_JSON", "TRIALS_CSV"]
@@ -363,13 +363,17 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
 
     def work() -> None:
         synced = read_synced(synced_path)
-        fits, skipped = fit_bounds(synced, cfg.bounds)
+        bcfg = cfg.bounds
+        if bcfg.angle == "theta_con" and not has_contact_angles(synced):
+            bcfg = replace(bcfg, angle="theta_tip")  # tip-only angle tracks: the bounds on the tip angle
+        fits, skipped = fit_bounds(synced, bcfg)
         if not fits:
             reasons = "; ".join(f"{s['speed_mm_s']:g} mm/s: {s['reason']}" for s in skipped)
             raise InputError(synced_path, f"no speed could be fitted for the bounds ({reasons})")
         names = [p.name for p in write_figures(synced, fits, bdir, simulated=_simulated(cfg.scenario))]
-        write_bounds(fits, skipped, bdir, cfg=cfg.bounds, input_path=synced_path, figures=names)
-        rec.message = f"{len(fits)} speed(s) fitted" + (f", {len(skipped)} skipped" if skipped else "")
+        write_bounds(fits, skipped, bdir, cfg=bcfg, input_path=synced_path, figures=names)
+        rec.message = (f"{len(fits)} speed(s) fitted" + (f", {len(skipped)} skipped" if skipped else "")
+                       + ("; against theta_tip (the data have no contact angles)" if bcfg.angle == "theta_tip" else ""))
         single = single_trial_speeds(fits)
         if single:
             rec.message += ("; held-out coverage undefined at " + ", ".join(f"{v:g}" for v in single)

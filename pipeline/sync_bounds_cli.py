@@ -163,7 +163,7 @@ def _simulated(args: argparse.Namespace):
 
 def run_bounds(args: argparse.Namespace) -> int:
     """Run ``tympani bounds``; 0 on success, 2 on bad input (no speed could be fitted)."""
-    from pipeline.bounds import BoundsConfig, fit_bounds, read_synced, single_trial_speeds, write_bounds
+    from pipeline.bounds import BoundsConfig, fit_bounds, form_label, read_synced, single_trial_speeds, write_bounds
     from vision.errors import InputError
 
     cfg = BoundsConfig(level=args.level, se=args.se, angle=args.angle)
@@ -187,10 +187,11 @@ def run_bounds(args: argparse.Namespace) -> int:
     if not args.quiet:
         for f in fits:
             cov = ("coverage undefined" if f.heldout_coverage is None else
-                   f"held-out coverage {100 * f.heldout_coverage:.1f} % ({f.recommended.form}), "
+                   f"held-out coverage {100 * f.heldout_coverage:.1f} % ({form_label(f.recommended.form)}), "
                    f"Eq. (9) {100 * f.heldout_coverage_eq9:.1f} %" if f.heldout_coverage_eq9 is not None else "")
             lof = "" if f.lack_of_fit is None else f"; {f.lack_of_fit.words()}"
-            print(f"  {f.speed_mm_s:g} mm/s: ln F = {f.c1:.3f} (±{f.c1_se:.2g}) {args.angle} + {f.c2:.3f} "
+            sign = "+" if f.c2 >= 0 else "-"
+            print(f"  {f.speed_mm_s:g} mm/s: ln F = {f.c1:.3f} (±{f.c1_se:.2g}) {args.angle} {sign} {abs(f.c2):.3f} "
                   f"(±{f.c2_se:.2g}); n={f.n}, {f.n_trials} trial(s); {cov}{lof}")
         for s in skipped:
             print(f"  {s['speed_mm_s']:g} mm/s skipped: {s['reason']}")
