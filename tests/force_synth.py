@@ -5,7 +5,7 @@ The tip angle follows the depth (``theta_tip = 0.18 + 0.22 d + 0.0035 d²`` rad,
 15 mm), contact starts at ``theta_tip = 1.4`` rad and ``theta_con = 0.7 (theta_tip − 1.4)``
 after it (a hinge, as in the renderer's contact policy). The video samples this at ``fps`` on its
 own clock (angle noise ``noise_rad``, theta_con ≥ 0); the force log samples
-``exp(c1 + c2 theta_con) + noise`` at ``rate_hz`` on the force clock, where video time 0 is
+``exp(c1 theta_con + c2) + noise`` (Eq. 8: c1 the slope, c2 the intercept) at ``rate_hz`` on the force clock, where video time 0 is
 force time ``t0_s``, and starts ``log_pre_s`` before the video.
 """
 
@@ -28,8 +28,8 @@ class Trial:
     rate_hz: float = 100.0
     noise_rad: float = 0.01
     noise_g: float = 0.05
-    c1: float = -0.5
-    c2: float = 1.6
+    c1: float = 1.6
+    c2: float = -0.5
     depth_mm: float = 15.0
     pre_s: float = 1.0
     post_s: float = 1.0
@@ -68,7 +68,7 @@ def make_trial(rng: np.random.Generator, trial: Trial = Trial(), *, name: str = 
     })
     tf = trial.t0_s - trial.log_pre_s + np.arange(0.0, span + trial.log_pre_s + trial.log_post_s, 1.0 / trial.rate_hz)
     d_f, _, con_f = kinematics(tf - trial.t0_s, trial)
-    force = np.exp(trial.c1 + trial.c2 * con_f) + rng.normal(0.0, trial.noise_g, tf.size)
+    force = np.exp(trial.c1 * con_f + trial.c2) + rng.normal(0.0, trial.noise_g, tf.size)
     log = pd.DataFrame({"time_s": np.round(tf, 6), "force_g": force})
     if trial.with_depth:
         log["depth_mm"] = d_f
