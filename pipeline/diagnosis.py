@@ -8,9 +8,11 @@ Candidates
 - ``base``: the SPEC §4 model with the *nominal* friction law (:attr:`DiagnosisConfig.friction`,
   by default the paper's mu_s = 0.18, mu_k = 0.12 with the v_s and delta_s fitted to TABLE II: the
   simulation's) and the four pressure coefficients identified (Eq. 6, each linear in theta_con).
-- ``control``: the same with the whole friction law re-identified (``mu_s``, ``mu_k``, ``v_s``,
-  ``mu_v``). An effect must beat it, so that no effect is credited with what a better-fitted
-  Stribeck curve already explains.
+- ``control``: the same with the Stribeck law re-identified (``mu_s``, ``mu_k``, ``v_s``). An
+  effect must beat it, so that no effect is credited with what a better-fitted Stribeck curve
+  already explains. The viscous term of the friction law (a coefficient growing in proportion to
+  speed: shear of the lubricant film in the contact) is not part of it: that is viscous drag in
+  the contact, and the ``viscous_drag`` candidate carries it.
 - one per effect of :data:`pipeline.effects.EFFECTS`: ``base`` + the effect's term, with the
   friction law held nominal. Holding it matters: friction is a small share of the force on these
   arcs (:mod:`pipeline.friction`), so a free Stribeck curve is identified mainly by whatever else
@@ -153,7 +155,13 @@ DATA_NEEDED = ("the diagnosis needs at least 3 insertion speeds with at least 2 
 #: Insertion phases of the "where" analysis.
 PHASES = ("before", "early", "middle", "late", "dwell")
 
-_FRICTION_CONTROL = ("mu_s", "mu_k", "log_v_s", "mu_v_s_per_mm")
+#: The control's friction constants: the Stribeck law of a dry-ish contact. Its viscous term (a friction
+#: coefficient growing in proportion to speed: shear of the lubricant in the contact) is left to the
+#: viscous_drag candidate, which carries it as its contact term.
+_FRICTION_CONTROL = ("mu_k", "mu_sk", "log_v_s")
+#: Bounds of the control's constants: mu_sk = mu_s - mu_k >= 0 (static friction is not below kinetic, so the
+#: law falls with speed, as Stribeck's does; a friction that rises with speed is viscous shear).
+_CONTROL_BOUNDS = {"mu_k": (0.0, 1.5), "mu_sk": (0.0, 1.5), "mu_v_s_per_mm": (0.0, 0.5)}
 _CONTACT_WIDTH_MM = FrictionParams().contact_width_mm  # held, as in pipeline.identify (only b_c * p enters)
 
 
@@ -202,9 +210,22 @@ class DiagnosisConfig:
     min_gain : float
         Least share of the control's held-out mean squared error (dimensionless) an effect must
         remove, at level ``alpha``, to count as explaining a gap.
+    unexplained_alpha : float
+        Level at which base and control must both fail the lack-of-fit test for a gap no effect
+        explains to be reported (``ambiguous``) rather than ``no_gap`` (stricter than
+        ``lof_alpha``: two tests at 0.05 fail together on 2 of 20 effect-free data sets).
     min_separation : float
         Least share of the leading effect's gain over the control (dimensionless) another effect
         must miss, at level ``alpha``, for the leader to be identified rather than tied with it.
+    min_explained : float
+        Least share of the reference's systematic misfit (squared) the leader must remove to be
+        identified (dimensionless); below it the verdict is ``ambiguous``.
+    mismatch_factor : float
+        Another effect that explains a gap stays tied with the leader unless its systematic misfit
+        (the repeatable part of its held-out residual, :func:`systematic_gap`, squared) exceeds the
+        leader's by more than ``mismatch_factor`` times the leader's own (dimensionless): when the
+        leader itself leaves a systematic misfit its form is not the data's, and a rival whose
+        misfit is not clearly larger may be the right effect in another form.
     lof_alpha : float
         Level of the lack-of-fit test (Holm-corrected over cells).
     phase_bins : int
@@ -230,7 +251,10 @@ class DiagnosisConfig:
     seed: int = 0
     alpha: float = 0.025
     min_gain: float = 0.05
-    min_separation: float = 0.15
+    unexplained_alpha: float = 0.01
+    min_explained: float = 0.5
+    min_separation: float = 0.30
+    mismatch_factor: float = 2.0
     lof_alpha: float = 0.05
     phase_bins: int = 4
     theta_bins: int = 5
@@ -281,6 +305,11 @@ class Prepared:
         The effects' context (wetted length, bump integrals, trial order).
     elapsed_s : ndarray
         Time (s) since the start of the trial's log.
+    since_start_s, since_stop_s : ndarray
+        Time (s) since the robot started and since it stopped (negative before; ``-inf`` since the
+        stop when the trial has no standing rows after its motion, or standing is unknown).
+    load_time_g_s : ndarray
+        Integral of the measured force over time from the trial's log start (g s).
     phase : ndarray
         Normalised time within the moving part of the trial (0 at the start, 1 at the stop;
         clipped for standing rows).
@@ -322,6 +351,9 @@ class Prepared:
     elapsed_s: np.ndarray
     phase: np.ndarray
     phase_label: np.ndarray
+    since_start_s: np.ndarray
+    since_stop_s: np.ndarray
+    load_time_g_s: np.ndarray
     lag_groups: tuple
     quad: "ArcQuadrature"
     entry_wetted_mm: np.ndarray
@@ -441,6 +473,21 @@ def _phases(trial: np.ndarray, time_s: np.ndarray, standing: np.ndarray) -> tupl
     return phase, label
 
 
+def _motion_clock(trial: np.ndarray, time_s: np.ndarray, standing: np.ndarray,
+                  label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Time (s) since the robot started and since it stopped, per row.
+
+    The start is the trial's first moving row (its first row when nothing stands); the stop is the
+    first row of the dwell (``-inf`` since the stop when the trial has none).
+    """
+    t = pd.Series(time_s)
+    start = t.where(~standing).groupby(trial).transform("min").to_numpy()
+    start = np.where(np.isfinite(start), start, t.groupby(trial).transform("min").to_numpy())
+    stop = t.where(label == PHASES.index("dwell")).groupby(trial).transform("min").to_numpy()
+    since_stop = np.where(np.isfinite(stop), time_s - stop, -np.inf)
+    return time_s - start, since_stop
+
+
 def smooth_angles(data: pd.DataFrame, width_s: float) -> pd.DataFrame:
     """Each trial's ``theta_tip`` and ``theta_bot`` smoothed in time; ``theta_con`` recomputed.
 
@@ -552,8 +599,14 @@ def prepare(
     standing_known = "depth_mm" in data.columns and pd.to_numeric(data["depth_mm"], errors="coerce").notna().any()
     standing_all = _not_moving(data) if standing_known else np.zeros(len(data), dtype=bool)
 
-    keep = [idx[_subsample_index(len(idx), config.rows_per_trial)]
-            for _, idx in data.groupby("trial", sort=True).indices.items()]
+    groups = data.groupby("trial", sort=True).indices
+    load_time = np.zeros(len(data))
+    t_all, f_all = data["time_s"].to_numpy(float), np.clip(data["force_g"].to_numpy(float), 0.0, None)
+    for idx in groups.values():  # integral of the force over time from the log's start (g s), per trial
+        order = idx[np.argsort(t_all[idx], kind="stable")]
+        steps = 0.5 * (f_all[order][1:] + f_all[order][:-1]) * np.diff(t_all[order])
+        load_time[order] = np.concatenate([[0.0], np.cumsum(steps)])
+    keep = [idx[_subsample_index(len(idx), config.rows_per_trial)] for idx in groups.values()]
     pick = np.concatenate(keep)
     rows = data.iloc[pick].reset_index(drop=True)
     standing = standing_all[pick]
@@ -561,6 +614,7 @@ def prepare(
     trial_codes, trial_names = pd.factorize(rows["trial"], sort=True)
     time_s = rows["time_s"].to_numpy(float)
     phase, label = _phases(trial_codes, time_s, standing)
+    since_start, since_stop = _motion_clock(trial_codes, time_s, standing, label)
     start = log_start.reindex(rows["trial"].astype(str)).to_numpy(float)
     t_first = pd.Series(time_s).groupby(trial_codes).transform("min").to_numpy()
     speed = rows["speed_mm_s"].to_numpy(float)
@@ -594,7 +648,8 @@ def prepare(
         trial_names=np.asarray(trial_names, dtype=str), trial_speed=trial_speed,
         trial_speed_idx=np.searchsorted(speeds, trial_speed), theta_con=theta_con, theta_hi=theta_hi,
         a_n=a_n, a_t=a_t, ctx=ctx, elapsed_s=rows["elapsed_s"].to_numpy(float), phase=phase,
-        phase_label=label, lag_groups=_lag_groups(trial_codes, time_s), quad=quad, entry_wetted_mm=entry,
+        phase_label=label, since_start_s=since_start, since_stop_s=since_stop, load_time_g_s=load_time[pick],
+        lag_groups=_lag_groups(trial_codes, time_s), quad=quad, entry_wetted_mm=entry,
         l_con_mm=np.nan_to_num(arcs.length_mm), standing_known=bool(standing_known),
         notes=tuple(notes), n_rows_in=len(data),
     )
@@ -671,7 +726,7 @@ class _Kernel:
 
     ``params`` are all the kernel's parameters (the library's first); ``nonlinear`` of them are
     fitted by the outer search within ``bounds``; ``linear`` ones are coefficients of added
-    ``columns(ds, mu) -> (n, len(linear))`` (``signed``: may be negative; ``gained``: scaled by the
+    ``columns(ds, mu, nl) -> (n, len(linear))`` (``signed``: may be negative; ``gained``: scaled by the
     trial gain, as contact forces are); ``transform(A, ds, mu, nl)`` maps the pressure columns;
     ``offset(ds, mu, nl)`` adds a fixed term; ``null`` gives every parameter's no-effect value.
     """
@@ -695,6 +750,48 @@ def _lift_transform(a, ds, mu, nl):
     return a * (1.0 - share)[:, None]
 
 
+def film_factor(ds: Prepared, build_mm: float, squeeze_s: float) -> np.ndarray:
+    """Share (0–1) of its steady state a lubricant film has reached, per row.
+
+    The film is dragged in by the sliding: it builds up over a sliding distance ``build_mm`` (mm)
+    once the robot moves, ``1 - exp(-v t / build_mm)`` at the run speed ``v``, and squeezes out with
+    a time constant ``squeeze_s`` (s) once it stops (no sliding then): that value times
+    ``exp(-t' / squeeze_s)`` a time ``t'`` after the stop; 0 before the start. Building up over a
+    distance rather than a time is what tells a film from a sensor's lag, whose time constant is
+    the same at every speed.
+    """
+    t0, t1 = ds.since_start_s, ds.since_stop_s
+    v = np.abs(ds.speed)
+
+    def built(t: np.ndarray) -> np.ndarray:
+        if build_mm <= 1e-9:
+            return np.ones_like(t)
+        return -np.expm1(-v * np.maximum(t, 0.0) / build_mm)
+
+    moving = np.where(t0 >= 0, built(t0), 0.0)
+    at_stop = built(t0 - np.where(np.isfinite(t1), t1, 0.0))
+    after = at_stop * np.exp(-np.maximum(t1, 0.0) / max(squeeze_s, 1e-9))
+    return np.where(np.isfinite(t1) & (t1 >= 0), after, moving)
+
+
+def _lift_film_transform(a, ds, mu, nl):
+    share = np.clip(nl[0] * np.power(np.abs(ds.speed), nl[1]) * film_factor(ds, float(nl[2]), float(nl[3])), 0.0, 0.95)
+    return a * (1.0 - share)[:, None]
+
+
+def _drag_columns(ds, mu, nl):
+    """Shear on the wetted array: the speed times the wetted lengths in the spiral, the entry and the
+    contact (g per g s/mm^2)."""
+    return ds.v_inst[:, None] * np.stack([ds.ctx.wetted_mm, ds.entry_wetted_mm, ds.l_con_mm], axis=1)
+
+
+def _contact_shear_transform(a, ds, mu, nl):
+    """Lubricant shear in the contact film: the friction coefficient grows by ``m v^q`` (``v`` the
+    instantaneous speed in mm/s; nothing while standing)."""
+    m, q = float(nl[0]), float(nl[1])
+    return a if m == 0.0 else a + (m * np.power(ds.v_inst, q))[:, None] * ds.a_t
+
+
 def _capstan_transform(a, ds, mu, nl):
     """Capstan equation along the arc: each element's load (normal + friction) times
     ``exp(k mu dtheta)``, ``dtheta`` its wrap angle from the contact start (rad); the exact base
@@ -716,7 +813,7 @@ def _lag_transform(a, ds, mu, nl):
     return dead_time(lag_foh(a, ds, float(nl[0])), ds, float(nl[1]))
 
 
-def _profile_columns(ds, mu):
+def _profile_columns(ds, mu, nl):
     """Pressure modes along the arc (MPa coefficients -> g): the library's symmetric bump
     ``4u(1-u)`` and a skew mode ``4u(1-u)(1-2u)``, each with a constant amplitude and one growing
     linearly with theta_con (as Eq. 6's pressures do)."""
@@ -742,7 +839,7 @@ _KERNELS: dict[str, _Kernel] = {
     "viscous_drag": _Kernel(
         params=("drag_g_s_per_mm2", "drag_entry_g_s_per_mm2", "drag_contact_g_s_per_mm2"),
         linear=("drag_g_s_per_mm2", "drag_entry_g_s_per_mm2", "drag_contact_g_s_per_mm2"), signed=(False, False, False),
-        columns=lambda ds, mu: ds.v_inst[:, None] * np.stack([ds.ctx.wetted_mm, ds.entry_wetted_mm, ds.l_con_mm], axis=1),
+        columns=_drag_columns,
         null={"drag_g_s_per_mm2": 0.0, "drag_entry_g_s_per_mm2": 0.0, "drag_contact_g_s_per_mm2": 0.0},
         form="v (c L_spiral + c_entry L_entry + c_contact l_con), zero while standing (library: c v L_wet)"),
     "capstan": _Kernel(
@@ -757,7 +854,8 @@ _KERNELS: dict[str, _Kernel] = {
         grid=tuple((t, d) for t in (0.03, 0.1, 0.3, 0.8, 2.0) for d in (0.0, 0.05)),
         form="first-order lag tau plus a dead time (library: first-order lag)"),
     "sensor_drift": _Kernel(
-        params=("drift_g_per_s",), linear=("drift_g_per_s",), signed=(True,), columns=lambda ds, mu: ds.elapsed_s[:, None],
+        params=("drift_g_per_s",), linear=("drift_g_per_s",), signed=(True,),
+        columns=lambda ds, mu, nl: ds.elapsed_s[:, None],
         null={"drift_g_per_s": 0.0},
         form="r t from the start of each log (library form; a quadratic term was tried and extrapolates badly to "
              "the long slow trials)"),
@@ -766,6 +864,51 @@ _KERNELS: dict[str, _Kernel] = {
         columns=_profile_columns, null={p: 0.0 for p in _PROFILE_PARAMS},
         form="pressure modes 4u(1-u) and 4u(1-u)(1-2u) along the arc, amplitudes linear in theta_con "
              "(library: one symmetric bump of fixed amplitude)"),
+}
+
+
+def _drift_thermal_columns(ds, mu, nl):
+    """A thermal drift that settles, ``r tau (1 - exp(-t / tau))`` (slope ``r`` g/s at the log's
+    start; a straight line as tau grows), and a creep under load, ``c integral F dt`` (g per g s)."""
+    tau = float(nl[0])
+    t = ds.elapsed_s
+    return np.stack([-tau * np.expm1(-t / tau), ds.load_time_g_s], axis=1)
+
+
+#: Richer variants of effects: (effect, variant) -> kernel. A variant is used only when it predicts
+#: held-out speeds significantly better than the effect's plain kernel (:func:`diagnose`): its extra
+#: parameters must be ones the data can separate.
+_VARIANTS: dict[tuple[str, str], _Kernel] = {
+    ("hydrodynamic_lift", "film"): _Kernel(
+        params=("lift_share", "lift_exponent", "film_build_mm", "film_squeeze_s"),
+        nonlinear=("lift_share", "lift_exponent", "film_build_mm", "film_squeeze_s"),
+        bounds={"lift_share": (0.0, 0.9), "lift_exponent": (0.2, 1.5), "film_build_mm": (0.0, 10.0),
+                "film_squeeze_s": (0.1, 100.0)},
+        transform=_lift_film_transform,
+        null={"lift_share": 0.0, "lift_exponent": 0.65, "film_build_mm": 0.0, "film_squeeze_s": 100.0},
+        grid=tuple((a, n, b, q) for a in (0.03, 0.1, 0.3) for n in (0.3, 0.65, 1.1) for b in (0.0, 2.0)
+                   for q in (2.0, 30.0)),
+        form="F (1 - a v^n f), the film f built up over a sliding distance once the robot moves and squeezed "
+             "out with a time constant after it stops"),
+    ("viscous_drag", "contact"): _Kernel(
+        params=("drag_g_s_per_mm2", "drag_entry_g_s_per_mm2", "drag_contact_g_s_per_mm2", "shear_coefficient",
+                "shear_exponent"),
+        nonlinear=("shear_coefficient", "shear_exponent"),
+        bounds={"shear_coefficient": (0.0, 0.5), "shear_exponent": (0.2, 1.5)},
+        transform=_contact_shear_transform,
+        linear=("drag_g_s_per_mm2", "drag_entry_g_s_per_mm2", "drag_contact_g_s_per_mm2"), signed=(False, False, False),
+        columns=_drag_columns,
+        null={"drag_g_s_per_mm2": 0.0, "drag_entry_g_s_per_mm2": 0.0, "drag_contact_g_s_per_mm2": 0.0,
+              "shear_coefficient": 0.0, "shear_exponent": 1.0},
+        grid=((0.01, 0.5), (0.01, 1.0), (0.05, 0.5), (0.05, 1.0)),
+        form="shear on the wetted array, v (c L_spiral + c_entry L_entry + c_contact l_con), plus shear in the "
+             "contact film, a friction coefficient growing as m v^q with the contact load"),
+    ("sensor_drift", "thermal"): _Kernel(
+        params=("drift_g_per_s", "drift_settle_s", "creep_per_s"), nonlinear=("drift_settle_s",),
+        bounds={"drift_settle_s": (2.0, 500.0)}, linear=("drift_g_per_s", "creep_per_s"), signed=(True, True),
+        columns=_drift_thermal_columns, null={"drift_g_per_s": 0.0, "drift_settle_s": 500.0, "creep_per_s": 0.0},
+        grid=((5.0,), (20.0,), (100.0,)),
+        form="r tau (1 - exp(-t / tau)) + c integral F dt: a thermal drift that settles and a creep under load"),
 }
 
 
@@ -783,8 +926,10 @@ def _generic_kernel(name: str) -> _Kernel:
                    null=dict(zip(effect.params, effect.null)), grid=(tuple(effect.start),), form="library form")
 
 
-def kernel(name: str) -> _Kernel:
-    """The diagnosis' kernel of a library effect (its own, or the generic one)."""
+def kernel(name: str, variant: str = "") -> _Kernel:
+    """The diagnosis' kernel of a library effect (its own, a richer variant, or the generic one)."""
+    if variant:
+        return _VARIANTS[(name, variant)]
     return _KERNELS.get(name) or _generic_kernel(name)
 
 
@@ -806,18 +951,21 @@ class Candidate:
     effect : str or None
         The effect added to the base (None for base and control).
     friction : tuple of str
-        Friction constants fitted (the control's ``mu_s``, ``mu_k``, ``log_v_s`` =
+        Friction constants fitted (the control's ``mu_k``, ``mu_sk`` = mu_s - mu_k >= 0, ``log_v_s`` =
         ln(v_s / 1 mm/s), ``mu_v_s_per_mm``); empty: the nominal friction law is held.
+    variant : str
+        A richer variant of the effect's kernel (``""``: the plain one).
     """
 
     name: str
     effect: str | None
     friction: tuple[str, ...] = ()
+    variant: str = ""
 
     @property
     def kernel(self) -> _Kernel | None:
         """The effect's kernel (None without an effect)."""
-        return None if self.effect is None else kernel(self.effect)
+        return None if self.effect is None else kernel(self.effect, self.variant)
 
     @property
     def nonlinear_names(self) -> tuple[str, ...]:
@@ -830,7 +978,7 @@ class Candidate:
         lo, hi = [], []
         for nm in self.friction:
             a, b = ((math.log(PARAM_BOUNDS["v_s_mm_s"][0]), math.log(PARAM_BOUNDS["v_s_mm_s"][1]))
-                    if nm == "log_v_s" else PARAM_BOUNDS[nm])
+                    if nm == "log_v_s" else _CONTROL_BOUNDS[nm])
             lo.append(a)
             hi.append(b)
         if self.effect is not None:
@@ -859,15 +1007,16 @@ def candidates(effects: Sequence[str] = tuple(EFFECTS)) -> list[Candidate]:
     if unknown:
         raise ValueError(f"unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
     return ([Candidate("base", None), Candidate("control", None, _FRICTION_CONTROL)]
-            + [Candidate(e, e) for e in effects])
+            + [Candidate(e, e) for e in effects]
+            + [Candidate(f"{e}:{v}", e, variant=v) for (e, v) in _VARIANTS if e in effects])
 
 
 def _friction_law(cand: Candidate, x: np.ndarray, nominal: FrictionParams) -> FrictionParams:
     if not cand.friction:
         return nominal
     values = dict(zip(cand.friction, map(float, x[: len(cand.friction)])))
-    return replace(nominal, mu_s=values["mu_s"], mu_k=values["mu_k"], v_s_mm_s=math.exp(values["log_v_s"]),
-                   mu_v_s_per_mm=values.get("mu_v_s_per_mm", nominal.mu_v_s_per_mm))
+    return replace(nominal, mu_s=values["mu_k"] + values["mu_sk"], mu_k=values["mu_k"],
+                   v_s_mm_s=math.exp(values["log_v_s"]), mu_v_s_per_mm=values.get("mu_v_s_per_mm", nominal.mu_v_s_per_mm))
 
 
 def _mu(ds: Prepared, law: FrictionParams) -> np.ndarray:
@@ -895,7 +1044,7 @@ def _design(ds: Prepared, cand: Candidate, x: np.ndarray, nominal: FrictionParam
         if kern.transform is not None:
             a = kern.transform(a, ds, mu, nl)
         if kern.columns is not None:
-            cols = kern.columns(ds, mu)
+            cols = kern.columns(ds, mu, nl)
             extra = [cols[:, j] for j in range(cols.shape[1])] + [-cols[:, j] for j, s in enumerate(kern.signed) if s]
             block = np.column_stack(extra)
             if kern.gained:
@@ -1050,7 +1199,7 @@ class CandidateFit:
 def _x_scale(cand: Candidate) -> np.ndarray:
     lo, hi = cand.bounds()
     nf = len(cand.friction)
-    scale = [{"mu_s": 0.05, "mu_k": 0.05, "log_v_s": 1.0, "mu_v_s_per_mm": 0.01}[nm] for nm in cand.friction]
+    scale = [{"mu_sk": 0.05, "mu_k": 0.05, "log_v_s": 1.0, "mu_v_s_per_mm": 0.01}[nm] for nm in cand.friction]
     return np.asarray(scale + list((hi - lo)[nf:] / 20.0), float)
 
 
@@ -1061,11 +1210,13 @@ def _start_points(ds: Prepared, cand: Candidate, rows: np.ndarray | None, config
     lo, hi = cand.bounds()
     nominal = config.friction
     if cand.friction:
-        first = np.array([nominal.mu_s, nominal.mu_k, math.log(nominal.v_s_mm_s), nominal.mu_v_s_per_mm])
-        out = [first]
+        first = {"mu_sk": max(nominal.mu_s - nominal.mu_k, 0.0), "mu_k": nominal.mu_k,
+                 "log_v_s": math.log(nominal.v_s_mm_s), "mu_v_s_per_mm": nominal.mu_v_s_per_mm}
+        out = [np.array([first[nm] for nm in cand.friction])]
         for _ in range(max(0, config.starts - 1)):
-            out.append(np.array([rng.uniform(0.05, 0.5), rng.uniform(0.05, 0.5),
-                                 rng.uniform(math.log(0.1), math.log(10.0)), rng.uniform(0.0, 0.02)]))
+            draw = {"mu_sk": rng.uniform(0.0, 0.3), "mu_k": rng.uniform(0.05, 0.5),
+                    "log_v_s": rng.uniform(math.log(0.1), math.log(10.0)), "mu_v_s_per_mm": rng.uniform(0.0, 0.02)}
+            out.append(np.array([draw[nm] for nm in cand.friction]))
         return [np.clip(x, lo, hi) for x in out]
     kern = cand.kernel
     assert kern is not None  # no friction constants and fit_candidate has bounds: an effect
@@ -1501,7 +1652,8 @@ def bootstrap_mse(sse: np.ndarray, n: np.ndarray, weights: np.ndarray, trials: n
 
 
 def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: Sequence[str], lof_significant: bool,
-           config: DiagnosisConfig = DiagnosisConfig()) -> dict:
+           config: DiagnosisConfig = DiagnosisConfig(), systematic: Mapping[str, float] | None = None,
+           lof_p: tuple[float, float] = (1.0, 1.0)) -> dict:
     """The verdict from held-out mean squared errors.
 
     The *reference* is the better (smaller held-out MSE) of ``base`` and ``control``: an effect
@@ -1511,12 +1663,18 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
     1. An effect *explains a gap* when, at one-sided level ``alpha`` of the bootstrap over trials,
        it removes more than ``min_gain`` of the held-out MSE of base and of control:
        ``quantile_alpha(MSE_r - MSE_e - min_gain MSE_r) > 0`` for r = base and r = control.
-    2. ``no_gap`` when no effect explains a gap, or when base passes the lack-of-fit test (its
-       held-out predictions are within the scatter between repeats).
+    2. ``no_gap`` when base passes the lack-of-fit test (its held-out predictions are within the
+       scatter between repeats), or when no effect explains a gap. Except: when base and control
+       both fail the test at the stricter level ``unexplained_alpha`` and no effect explains the
+       gap, ``ambiguous``: there is a gap of a form no candidate has; the three effects with the
+       smallest held-out errors are named, ranked.
     3. Otherwise the leader ``b`` is the effect with the smallest held-out MSE; another effect ``e``
        is *separated* from it when it misses more than ``min_separation`` of the leader's gain
        over the reference: ``quantile_alpha(MSE_e - MSE_b - min_separation (MSE_ref - MSE_b)) > 0``.
        ``identified`` when every other effect is separated, else ``ambiguous`` with the tied ones.
+    4. Misfit guard: an effect that explains a gap stays tied with the leader unless its systematic
+       misfit ``S`` (noise-corrected RMS of its held-out residual over repeats) satisfies
+       ``S_e^2 - S_b^2 > mismatch_factor * S_b^2``.
 
     Parameters
     ----------
@@ -1529,6 +1687,10 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
     lof_significant : bool
         Whether base fails the lack-of-fit test (held-out residuals vs repeat scatter).
     config : DiagnosisConfig
+    lof_p : tuple of float
+        Lack-of-fit p-values of base and control (rule 2).
+    systematic : mapping, optional
+        Systematic misfit (g) of each effect's held-out residual (rule 4; skipped without it).
 
     Returns
     -------
@@ -1553,9 +1715,26 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
             with np.errstate(divide="ignore", invalid="ignore"):  # 1e9: "no gain to miss" in that draw
                 ratio = np.where(denom > 0, (draws[e] - draws[leader]) / np.where(denom > 0, denom, 1.0), 1e9)
             sep_lo[e] = float(np.quantile(ratio, a))
-    tied = [leader] + [e for e in effects if e != leader
-                       and not np.quantile(draws[e] - draws[leader] - config.min_separation * denom, a) > 0]
-    if leader not in explains:
+    def separated(e: str) -> bool:
+        if not np.quantile(draws[e] - draws[leader] - config.min_separation * denom, a) > 0:
+            return False
+        if systematic is None or config.mismatch_factor <= 0 or e not in explains:
+            return True
+        s_b, s_e = systematic[leader] ** 2, systematic[e] ** 2
+        return s_e - s_b > config.mismatch_factor * s_b
+
+    tied = [leader] + sorted((e for e in effects if e != leader and not separated(e)), key=lambda e: mse[e])
+    s_ref = systematic.get(ref, 0.0) if systematic is not None else 0.0
+    adequate = (systematic is None or config.min_explained <= 0 or s_ref <= 0
+                or systematic[leader] ** 2 <= (1.0 - config.min_explained) * s_ref ** 2)
+    if leader not in explains and max(lof_p) < config.unexplained_alpha:
+        verdict, effect = "ambiguous", None
+        tied = sorted(effects, key=lambda e: mse[e])[:3]
+        reason = ("the model misses the scatter between repeats on held-out speeds, with its friction law as "
+                  "simulated and re-identified, but no effect removes significantly more than "
+                  f"{100 * config.min_gain:.0f} % of the held-out error: the gap has a form none of the candidates "
+                  f"has; closest: {', '.join(tied)}")
+    elif leader not in explains:
         verdict, effect, tied = "no_gap", None, []
         reason = (f"no effect removes significantly more than {100 * config.min_gain:.0f} % of the held-out error of the "
                   f"base model with nominal and with re-identified friction (best: {leader}, {100 * gain[leader]:.0f} % "
@@ -1564,6 +1743,12 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
         verdict, effect, tied = "no_gap", None, []
         reason = ("the SPEC model predicts held-out speeds within the scatter between repeats (lack-of-fit test "
                   f"not significant), although {leader} lowers the held-out error by {100 * gain[leader]:.0f} %")
+    elif len(tied) == 1 and not adequate:
+        verdict, effect = "ambiguous", None
+        tied = [leader] + sorted((e for e in effects if e != leader), key=lambda e: mse[e])[:2]
+        reason = (f"{leader} explains part of the gap best, but leaves more than {100 * (1 - config.min_explained):.0f} "
+                  "% of its repeatable part: its form is not the data's, and another effect in another form may be "
+                  f"behind it; ranked: {', '.join(tied)}")
     elif len(tied) == 1:
         verdict, effect = "identified", leader
         runner = min(sep_lo, key=lambda e: mse[e]) if sep_lo else None
@@ -1580,7 +1765,7 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
         reason = (f"{', '.join(tied)} explain the gap about equally well on held-out speeds (none misses "
                   f"significantly more than {100 * config.min_separation:.0f} % of the leader's gain)")
     return dict(verdict=verdict, effect=effect, reference=ref, leader=leader, tied=tied, explains=explains, gain=gain,
-                gain_lo=gain_lo, separation_lo=sep_lo, reason=reason)
+                gain_lo=gain_lo, separation_lo=sep_lo, systematic_g=dict(systematic or {}), reason=reason)
 
 
 # --------------------------------------------------------------------------- peak-force drop
@@ -1808,13 +1993,32 @@ def diagnose(
         held[cand.name], held_shared[cand.name], held_free[cand.name], folds[cand.name] = heldout_predictions(
             ds, cand, fit, config)
     names = [c.name for c in cands]
-    effects = [c.name for c in cands if c.effect is not None]
     sse = np.column_stack([_trial_sse(ds, ds.y - held[nm])[0] for nm in names])
     n_tr = _trial_sse(ds, ds.y)[1]
     weights = bootstrap_weights(ds, config.bootstrap, rng)
     draws_all = bootstrap_mse(sse, n_tr, weights)
     draws = {nm: draws_all[:, i] for i, nm in enumerate(names)}
     mse = {nm: float(sse[:, i].sum() / n_tr.sum()) for i, nm in enumerate(names)}
+    # a richer variant of an effect replaces its plain kernel only when it predicts the held-out
+    # speeds significantly better: its extra parameters must be ones the data separate
+    variants = {}
+    for cand in [c for c in cands if c.variant]:
+        plain = str(cand.effect)
+        used = bool(np.quantile(draws[plain] - draws[cand.name], config.alpha) > 0)
+        variants[plain] = dict(variant=cand.variant, used=used, heldout_rmse_plain_g=math.sqrt(mse[plain]),
+                               heldout_rmse_variant_g=math.sqrt(mse[cand.name]))
+        for table_ in (fits, folds, held, held_shared, held_free, fitted, fitted_shared, mse, draws):
+            if used:
+                table_[plain] = table_[cand.name]
+            del table_[cand.name]
+        if used:
+            fits[plain] = replace(fits[plain], candidate=replace(cand, name=plain))
+    cands = [fits[c.name].candidate for c in cands if not c.variant]
+    keep = [names.index(c.name if not variants.get(c.name, {}).get("used") else f"{c.name}:{variants[c.name]['variant']}")
+            for c in cands]
+    names = [c.name for c in cands]
+    effects = [c.name for c in cands if c.effect is not None]
+    sse = sse[:, keep]
 
     # Tests against the scatter between repeats use held-out predictions (a flexible friction law
     # cannot hide in-sample a gap it cannot predict), twice: with each speed's common prediction
@@ -1826,7 +2030,10 @@ def diagnose(
     # a gap needs the SPEC model as simulated (base) to miss the repeat scatter on held-out speeds;
     # the control nearly always misses it out of sample (its free friction law extrapolates badly),
     # so it takes part through the gain test instead
-    decision = decide(mse, draws, effects, lof["base"]["significant"], config)
+    systematic = {nm: systematic_gap(ds, ds.y - held_shared[nm], config.phase_bins) for nm in names}
+    decision = decide(mse, draws, effects, lof["base"]["significant"], config, systematic,
+                      lof_p=(lof["base"]["p_value"], lof["control"]["p_value"]))
+    decision["variants"] = variants
     leader = decision["effect"] or decision["leader"]
 
     fastest = ds.trial_speed == ds.speeds[-1]
@@ -1995,14 +2202,16 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
         "tied": diag.decision["tied"],
         "leader": diag.decision["leader"],
         "explains": diag.decision["explains"],
-        "control": dict(description="the SPEC §4 model with its friction law re-identified (mu_s, mu_k, v_s, mu_v); "
+        "control": dict(description="the model with its Stribeck law re-identified (mu_s, mu_k, v_s); "
                                     "an effect must beat it on held-out speeds",
                         heldout_rmse_g=diag.gap["rmse_control_g"], params=diag.fits["control"].params(ds.theta_hi)),
         "lack_of_fit": diag.lof,
         "forms": {"base": "SPEC §4 (Eqs. 2-7) with the nominal friction law; pressures linear in theta_con (Eq. 6); "
                           "a per-trial gain on the contact force, mean per speed within ±2 sd/sqrt(n) of 1",
-                  "control": "base with mu_s, mu_k, v_s, mu_v re-identified",
-                  **{e: kernel(e).form for e in diag.identifiability}},
+                  "control": "base with mu_s, mu_k, v_s re-identified",
+                  **{e: diag.fits[e].candidate.kernel.form for e in diag.identifiability}},  # type: ignore[union-attr]
+        "variants": diag.decision.get("variants", {}),
+        "systematic_misfit_g": diag.decision.get("systematic_g", {}),
         "identifiability": diag.identifiability,
         "peak_drop": diag.peak_drop,
         "experiments": diag.experiments,

@@ -37,8 +37,8 @@ import pandas as pd
 
 from .diagnosis import DiagnosisConfig, diagnose
 
-__all__ = ["EvalConfig", "CaseSpec", "case_specs", "run_case", "evaluate", "summarise", "format_evaluation",
-           "NOISE_LEVELS", "VERDICT_COLUMNS"]
+__all__ = ["EvalConfig", "CaseSpec", "GeneratedCase", "FAMILIES", "family_a", "family_b", "case_specs", "run_case",
+           "evaluate", "summarise", "format_evaluation", "NOISE_LEVELS", "VERDICT_COLUMNS"]
 
 #: Noise levels: factor on the generator's default sensor noise (white, AR(1), tare).
 NOISE_LEVELS: dict[str, float] = {"low": 0.5, "nominal": 1.0, "high": 3.0}
@@ -65,6 +65,9 @@ class EvalConfig:
     keep_errors : bool
         Keep each case's per-trial held-out errors (columns starting with ``_``; for studying decision
         rules, not written to files).
+    family : str
+        Generator family of the data (:data:`FAMILIES`): ``"A"`` (:mod:`pipeline.synthetic`) or ``"B"``
+        (:mod:`pipeline.synthetic_b`, written independently from a physics brief).
     """
 
     effects: tuple[str | None, ...] = (None, "hydrodynamic_lift", "viscous_drag", "capstan", "sensor_lag",
@@ -75,6 +78,7 @@ class EvalConfig:
     trials: int = 10
     diagnosis: DiagnosisConfig = field(default_factory=lambda: DiagnosisConfig(bootstrap=500))
     keep_errors: bool = False
+    family: str = "A"
 
 
 @dataclass(frozen=True)
@@ -143,24 +147,16 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         ``confident_wrong``), shrinkages (``shrink_pct``, ``true_shrink_pct``), the share of the
         peak drop explained and timings (s); ``error`` if the diagnosis failed.
     """
-    from .synthetic import NoiseConfig, synthetic_dataset
-
-    factor = config.noise_levels[spec.noise_level]
-    base_noise = NoiseConfig()
-    noise = replace(base_noise, white_g=base_noise.white_g * factor, ar_g=base_noise.ar_g * factor,
-                    tare_sd_g=base_noise.tare_sd_g * factor)
-    rng = np.random.default_rng(np.random.SeedSequence(list(spec.entropy)))
     t0 = time.perf_counter()
-    synced, truth = synthetic_dataset(rng, spec.effect, strength=spec.strength if spec.effect else 1.0,
-                                      speeds_mm_s=config.speeds_mm_s, trials=config.trials, noise=noise)
+    case = FAMILIES[config.family](spec, config)
+    synced, clean_all, base_all = case.synced, case.clean_g, case.base_g
     t_gen = time.perf_counter() - t0
-    clean = truth["tables"]["clean"]["force_effect_g"].to_numpy(float)
     table = synced.assign(row_id=np.arange(len(synced)))
     out: dict[str, Any] = dict(
-        case=spec.index, effect=spec.effect or "none", strength=spec.strength, noise_level=spec.noise_level,
-        gap_to_noise=float(truth["gap_to_noise"]) if spec.effect else 0.0,
-        detectable=bool(truth["detectable"]) if spec.effect else False,
-        gap_rms_g=float(truth["gap_rms_g"]), noise_rms_g=float(truth["noise_rms_g"]), generate_s=t_gen)
+        family=config.family, case=spec.index, effect=spec.effect or "none", strength=spec.strength,
+        noise_level=spec.noise_level, gap_to_noise=case.gap_rms_g / case.noise_rms_g if spec.effect else 0.0,
+        detectable=bool(spec.effect and case.gap_rms_g > 2 * case.noise_rms_g),
+        gap_rms_g=case.gap_rms_g, noise_rms_g=case.noise_rms_g, generate_s=t_gen)
     try:
         d = diagnose(table, config.diagnosis)
     except Exception as exc:  # a failed case is reported, not fatal to the evaluation
@@ -169,8 +165,8 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
                    true_shrink_pct=float("nan"), peak_explained=float("nan"), diagnose_s=float("nan"))
         return out
     idx = d.data.rows["row_id"].to_numpy(int)
-    truth_rows = clean[idx]
-    base_rows = truth["tables"]["clean"]["force_base_g"].to_numpy(float)[idx]
+    truth_rows = clean_all[idx]
+    base_rows = base_all[idx]
     resid_gap = residual_gap(d.data, truth_rows, base_rows, config.diagnosis) if spec.effect else 0.0
     leader = d.decision["effect"] or d.decision["leader"]
 
@@ -186,6 +182,7 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         correct=bool((truth_effect is None and d.verdict == "no_gap") or (truth_effect is not None and found == truth_effect)),
         confident_wrong=bool(d.verdict == "identified" and found != truth_effect),
         ambiguous_includes_truth=bool(d.verdict == "ambiguous" and truth_effect in d.decision["tied"]),
+        ambiguous_top2_truth=bool(d.verdict == "ambiguous" and truth_effect in d.decision["tied"][:2]),
         residual_gap_g=resid_gap, residual_gap_to_noise=resid_gap / out["noise_rms_g"] if out["noise_rms_g"] > 0 else 0.0,
         shrink_pct=float(d.gap["shrink_pct"]), true_shrink_pct=float(100 * (1 - re_ / rb)) if rb > 0 else float("nan"),
         true_rmse_base_g=rb, true_rmse_effect_g=re_, gain_lo=float(d.decision["gain_lo"][d.decision["leader"]]),
@@ -202,7 +199,66 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         out["_trial_speed"] = d.data.trial_speed
         out["_lof"] = {k: (v["p_value"], v.get("level", v)["p_value"], v.get("shape", v)["p_value"])
                        for k, v in d.lof.items()}
+        out["_systematic"] = dict(d.decision["systematic_g"])
+        out["_mse"] = {nm: float(np.sum(out["_sse"][:, i]) / np.sum(out["_n"])) for i, nm in enumerate(names)}
     return out
+
+
+@dataclass(frozen=True)
+class GeneratedCase:
+    """One generated experiment as the evaluation needs it.
+
+    Attributes
+    ----------
+    synced : pandas.DataFrame
+        The synced table the diagnosis sees (no truth columns).
+    clean_g, base_g : ndarray
+        Per row, the noiseless force with and without the hidden effect (g).
+    gap_rms_g : float
+        RMS over the rows of ``clean_g - base_g`` (g).
+    noise_rms_g : float
+        RMS of the measured minus the noiseless force (g).
+    """
+
+    synced: pd.DataFrame
+    clean_g: np.ndarray
+    base_g: np.ndarray
+    gap_rms_g: float
+    noise_rms_g: float
+
+
+def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
+    """A case of :mod:`pipeline.synthetic` (noise level: a factor on its white, AR(1) and tare noise)."""
+    from .synthetic import NoiseConfig, synthetic_dataset
+
+    factor = config.noise_levels[spec.noise_level]
+    base_noise = NoiseConfig()
+    noise = replace(base_noise, white_g=base_noise.white_g * factor, ar_g=base_noise.ar_g * factor,
+                    tare_sd_g=base_noise.tare_sd_g * factor)
+    rng = np.random.default_rng(np.random.SeedSequence(list(spec.entropy)))
+    synced, truth = synthetic_dataset(rng, spec.effect, strength=spec.strength if spec.effect else 1.0,
+                                      speeds_mm_s=config.speeds_mm_s, trials=config.trials, noise=noise)
+    clean = truth["tables"]["clean"]
+    return GeneratedCase(synced, clean["force_effect_g"].to_numpy(float), clean["force_base_g"].to_numpy(float),
+                         float(truth["gap_rms_g"]), float(truth["noise_rms_g"]))
+
+
+def family_b(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
+    """A case of :mod:`pipeline.synthetic_b` (noise level: its ``noise_scale``)."""
+    from .synthetic_b import generate
+
+    seed = int(np.random.SeedSequence(list(spec.entropy)).generate_state(1)[0])
+    table, truth = generate(spec.effect, seed, strength=spec.strength if spec.effect else 1.0,
+                            speeds_mm_s=config.speeds_mm_s, trials=config.trials,
+                            noise_scale=config.noise_levels[spec.noise_level])
+    truth_columns = [c for c in table.columns if c.startswith("true_")]
+    return GeneratedCase(table.drop(columns=truth_columns).reset_index(drop=True),
+                         table["true_force_g"].to_numpy(float), table["true_base_g"].to_numpy(float),
+                         float(truth["gap_rms_g"]), float(truth["noise_rms_g"]))
+
+
+#: Generator families: name -> function (case spec, config) -> :class:`GeneratedCase`.
+FAMILIES = {"A": family_a, "B": family_b}
 
 
 def residual_gap(ds, clean_g: np.ndarray, base_g: np.ndarray, config: DiagnosisConfig) -> float:
@@ -341,6 +397,11 @@ def summarise(results: pd.DataFrame) -> dict:
         right["gap_shrink_pct"] = 100 * (1 - ee / eb)
     else:
         right["gap_shrink_pct"] = np.nan
+    r["useful"] = r["correct"] | r.get("ambiguous_top2_truth", False)
+    identified = r[r["verdict"] == "identified"]
+    ambiguous = r[r["verdict"] == "ambiguous"]
+    visible = r[(r["effect"] != "none") & r["detectable"]]
+    visible_res = r[(r["effect"] != "none") & (r.get("residual_gap_to_noise", 0) > 2)]
     rdet = r[(r["effect"] != "none") & (r.get("residual_gap_to_noise", 0) > 2)]
     rright = right[right.get("residual_gap_to_noise", 0) > 2]
     det = r[r["detectable"] | (r["effect"] == "none")]
@@ -362,6 +423,15 @@ def summarise(results: pd.DataFrame) -> dict:
         median_true_shrink_residual_detectable_pct=(float(rright["true_shrink_pct"].median()) if len(rright)
                                                     else float("nan")),
         median_diagnose_s=float(r["diagnose_s"].median()), errors=int((r["verdict"] == "error").sum()),
+        precision_identified=float(identified["correct"].mean()) if len(identified) else float("nan"),
+        identified_cases=int(len(identified)),
+        ambiguous_cases=int(len(ambiguous)),
+        ambiguous_truth_in_set=float(ambiguous["ambiguous_includes_truth"].mean()) if len(ambiguous) else float("nan"),
+        ambiguous_truth_in_top2=float(ambiguous["ambiguous_top2_truth"].mean()) if len(ambiguous) else float("nan"),
+        useful_visible=float(visible["useful"].mean()) if len(visible) else float("nan"),
+        visible_cases=int(len(visible)),
+        useful_visible_unabsorbed=float(visible_res["useful"].mean()) if len(visible_res) else float("nan"),
+        median_true_shrink_right_pct=float(right["true_shrink_pct"].median()) if len(right) else float("nan"),
     )
 
 
@@ -393,6 +463,12 @@ def format_evaluation(summary: dict) -> str:
                      f"{fmt(row['no_gap']):>7}")
     lines += [
         "",
+        f"precision of 'identified' {summary['precision_identified']:.3f} ({summary['identified_cases']} cases); "
+        f"ambiguous answers {summary['ambiguous_cases']}: the truth among the tied effects in "
+        f"{summary['ambiguous_truth_in_set']:.3f}, among the first two in {summary['ambiguous_truth_in_top2']:.3f}",
+        f"useful answers (right, or ambiguous with the truth among the first two) where the effect is visible above "
+        f"the noise: {summary['useful_visible']:.3f} of {summary['visible_cases']} (noiseless gap > 2 x noise); "
+        f"{summary['useful_visible_unabsorbed']:.3f} where the gap the model cannot absorb exceeds 2 x noise",
         f"accuracy {summary['accuracy']:.3f}; on detectable cases (gap > 2 x noise, and effect-free) "
         f"{summary['accuracy_detectable']:.3f} (effects only {summary['accuracy_detectable_effects']:.3f})",
         f"confident-wrong rate {summary['confident_wrong_rate']:.3f}; false 'identified' on effect-free data "

@@ -17,8 +17,10 @@ The predictions are first-order consequences of the library's functional forms
 - ``hydrodynamic_lift``: a film carries the share s(v) = a v^n of the load. On a retraction |F| is
   again lowered by s(v) (towards zero, no sign flip); with twice the viscosity s follows (eta v)^n,
   i.e. s(2v). In a dwell the film drains on a time set by viscosity and load (not by the sensor):
-  the library form does not say how fast, so the dwell splits lift from lag by its *time course*
-  only (lag: exactly tau), not by its size.
+  the plain form does not say how fast, so the dwell splits lift from lag by its *time course*
+  only (lag: exactly tau), not by its size. The film variant (built up over a sliding distance,
+  squeezed out with a fitted time constant) predicts the dwell's rise; when that time constant
+  matches a lag's, only a retraction or a second viscosity splits them.
 - ``viscous_drag``: + c v L_wet, opposing the motion: vanishes at once in a dwell, reverses on a
   retraction, doubles with twice the viscosity.
 - ``sensor_drift``: d g/s whatever the robot does: visible in a baseline log before any contact.
@@ -110,8 +112,14 @@ def effect_predictions(ds, fit) -> dict:
         a, n = p["lift_share"], p["lift_exponent"]
         s1 = min(a * v**n, 0.95)
         s2 = min(a * (2 * v) ** n, 0.95)
-        put("dwell", None, f"up to {s1 * f0:.3g} g returns as the film drains, on a time set by viscosity and load "
-                           f"(not a sensor constant; the fitted form does not fix it)")
+        squeeze = p.get("film_squeeze_s")
+        if squeeze is None:
+            put("dwell", None, f"up to {s1 * f0:.3g} g returns as the film drains, on a time set by viscosity and "
+                               f"load (not a sensor constant; the fitted form does not fix it)")
+        else:
+            put("dwell", s1 * f0 * (1 - math.exp(-_DWELL_S / max(squeeze, 1e-9))),
+                f"the force rises by up to {s1 * f0:.3g} g as the film squeezes out, with the fitted time constant "
+                f"{squeeze:.3g} s, and faster with a thinner lubricant (a sensor's lag would not change)")
         put("retraction", -s1 * f_retract, f"|F| stays {100 * s1:.0f} % below the model ({-s1 * f_retract:+.3g} g, "
                                           f"towards zero) also when retracting: no sign flip")
         put("viscosity", -(s2 - s1) * f0, f"share grows with (eta v)^{n:.2f}: the force at the stop falls by a further "

@@ -160,7 +160,7 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
 
     lines += ["## Candidate forms", "", "| candidate | form |", "|---|---|",
               "| base | SPEC §4 with the nominal friction law, pressures linear in theta_con, a per-trial gain (mean per "
-              "speed within ±2 sd/sqrt(n) of 1) |", "| control | base with the friction law re-identified (mu_s, mu_k, v_s, mu_v) |"]
+              "speed within ±2 sd/sqrt(n) of 1) |", "| control | base with the Stribeck law re-identified (mu_s, mu_k, v_s) |"]
     lines += [f"| {e} | {kernel(e).form} |" for e in diag.identifiability]
     lines.append("")
     lines += ["## Method", "",

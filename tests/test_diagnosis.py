@@ -66,7 +66,22 @@ def test_no_gap_on_effect_free_data(effect_free):
     assert abs(d.gap["shrink_pct"]) < 10
 
 
-@pytest.mark.parametrize("effect", ["hydrodynamic_lift", "sensor_lag", "viscous_drag", "sensor_drift"])
+def test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment(strong):
+    """A first-order sensor lag and a lubricant film that builds up as the array slides and squeezes
+    out after the stop on the lag's time scale predict nearly the same insertion and dwell: the
+    verdict is ambiguous, lag first, and the experiment recommended (a retraction) has the two
+    predict opposite signs."""
+    truth, d = strong["sensor_lag"]
+    assert truth["detectable"]
+    assert d.verdict == "ambiguous" and d.decision["tied"][:2] == ["sensor_lag", "hydrodynamic_lift"]
+    assert d.decision["variants"]["hydrodynamic_lift"]["used"]
+    best = d.experiments[0]
+    assert best["experiment"] == "retraction" and best["complete"]
+    pred = best["predictions"]
+    assert pred["sensor_lag"]["change_g"] > 0 > pred["hydrodynamic_lift"]["change_g"]
+
+
+@pytest.mark.parametrize("effect", ["hydrodynamic_lift", "viscous_drag", "sensor_drift"])
 def test_strong_effects_are_identified(strong, effect):
     truth, d = strong[effect]
     assert truth["detectable"]
@@ -177,9 +192,9 @@ def test_kernels_reduce_to_the_library_forms(prepared):
     contact = ds.theta_con > 0.3
     assert np.all(cap2[contact].sum(axis=1) >= (ds.a_n + mu[:, None] * ds.a_t)[contact].sum(axis=1) - 1e-9)
     # drift: the library's linear drift from the log start; profile: the library's bump is the first mode
-    drift = kernel("sensor_drift").columns(ds, mu)[:, 0]
+    drift = kernel("sensor_drift").columns(ds, mu, np.zeros(0))[:, 0]
     assert np.all(np.diff(drift[ds.trial == 0]) > 0)
-    prof = kernel("pressure_profile").columns(ds, mu)[:, 0] / (FrictionParams().contact_width_mm / 9.80665e-3)  # per g/mm
+    prof = kernel("pressure_profile").columns(ds, mu, np.zeros(0))[:, 0] / (FrictionParams().contact_width_mm / 9.80665e-3)  # per g/mm
     lib = EFFECTS["pressure_profile"].apply(np.zeros(ds.n), ctx, [1.0], mu)
     assert np.corrcoef(prof, lib)[0, 1] > 0.99
     assert np.allclose(prof, lib, rtol=0.05, atol=0.02 * np.abs(lib).max())
@@ -269,26 +284,25 @@ def test_cli_diagnose_writes_the_report_and_exit_codes(tmp_path, capsys):
 # --------------------------------------------------------------------------- blind evaluation
 
 
-def test_small_blind_evaluation():
-    """A small seeded version of ``tympani evaluate-diagnosis`` with asserted bounds."""
+@pytest.mark.parametrize("family", ["A", "B"])
+def test_small_blind_evaluation(family):
+    """A small seeded version of ``tympani evaluate-diagnosis`` on each generator family (3 data sets
+    per label). The thresholds were set on family A; family B was written independently, with
+    other functional forms, and is the honest check."""
     from pipeline.diagnosis_eval import EvalConfig, evaluate, format_evaluation, summarise
 
-    config = EvalConfig(strength_range=(0.8, 2.0), noise_levels={"nominal": 1.0, "high": 3.0},
-                        diagnosis=DiagnosisConfig(bootstrap=300))
-    results = evaluate(14, 2024, workers=2, config=config)
+    config = EvalConfig(family=family, diagnosis=DiagnosisConfig(bootstrap=300))
+    results = evaluate(21, 2027, workers=2, config=config)
     summary = summarise(results)
     text = format_evaluation(summary)
+    print(text)
     assert "confusion matrix" in text and "ambig" in text and "no_gap" in text
     assert summary["errors"] == 0
     assert summary["false_identified_rate"] == 0.0
-    assert summary["confident_wrong_rate"] <= 1 / 14
-    assert summary["accuracy"] >= 0.7
-    assert summary["median_true_shrink_pct"] > 40
-    assert summary["median_gap_shrink_pct"] > 60
-    # where the gap the refitted base model cannot absorb exceeds twice the noise
-    assert summary["residual_detectable_cases"] >= 2
-    assert summary["accuracy_residual_detectable"] >= 0.8
-    assert summary["median_true_shrink_residual_detectable_pct"] > 60
+    assert summary["confident_wrong_rate"] == 0.0
+    assert summary["precision_identified"] == 1.0
+    assert summary["useful_visible_unabsorbed"] >= 0.85
+    assert summary["median_true_shrink_right_pct"] > 50
 
 
 def test_smooth_angles_keeps_trends_and_cuts_noise():
