@@ -148,7 +148,15 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         peak drop explained and timings (s); ``error`` if the diagnosis failed.
     """
     t0 = time.perf_counter()
-    case = FAMILIES[config.family](spec, config)
+    try:
+        case = FAMILIES[config.family](spec, config)
+    except Exception as exc:  # a generator that fails on one draw costs that case only
+        return dict(family=config.family, case=spec.index, effect=spec.effect or "none", strength=spec.strength,
+                    noise_level=spec.noise_level, gap_to_noise=0.0, detectable=False, gap_rms_g=float("nan"),
+                    noise_rms_g=float("nan"), generate_s=time.perf_counter() - t0, verdict="error",
+                    effect_found=None, error=f"generator: {type(exc).__name__}: {exc}", correct=False,
+                    confident_wrong=False, tied="", leader=None, shrink_pct=float("nan"), true_shrink_pct=float("nan"),
+                    peak_explained=float("nan"), diagnose_s=float("nan"))
     synced, clean_all, base_all = case.synced, case.clean_g, case.base_g
     t_gen = time.perf_counter() - t0
     table = synced.assign(row_id=np.arange(len(synced)))

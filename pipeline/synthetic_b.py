@@ -602,7 +602,7 @@ def tip_path(geom: PhantomGeometry, e_lat: float, tilt: float, kappa0: float = 0
     r_out, r_in = _riders(geom, float(r_tip))
     inner_touch: list[tuple[float, float]] = []
     d_hit = math.nan
-    for _ in range(8):
+    for _ in range(64):
         sel = depth > d_cur
         dloc = depth[sel] - d_cur
         xf = _free_arc(q, psi, kappa0, dloc)
@@ -1366,6 +1366,20 @@ def _calibrate_drag(prm: dict[str, Any], ds: dict[str, Any], ref: dict[str, Any]
 # --------------------------------------------------------------------------------------
 # Main entry point
 # --------------------------------------------------------------------------------------
+def _settled_tip_path(geom: PhantomGeometry, tr: dict[str, Any], tries: int = 6) -> TipPath:
+    """The trial's tip path; a draw whose tip slides back and forth along the inner wall without
+    settling on the outer one (about 2 % of draws) is bent slightly more clockwise (0.002 /mm a try,
+    recorded in ``tr``) until it settles."""
+    for k in range(tries):
+        try:
+            return tip_path(geom, tr["e_lat_mm"], tr["tilt_rad"], tr["kappa0_per_mm"])
+        except ValueError as exc:
+            if "did not settle" not in str(exc) or k == tries - 1:
+                raise
+            tr["kappa0_per_mm"] = float(tr["kappa0_per_mm"] - 0.002)
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
 def _trial_frame(effect: str | None, strength: float, seed: int, iv: int, it: int,
                  speed: float, ds: dict[str, Any], eff: dict[str, Any], ref: dict[str, Any],
                  geom: PhantomGeometry,
@@ -1377,7 +1391,7 @@ def _trial_frame(effect: str | None, strength: float, seed: int, iv: int, it: in
     t_on, t_off, t_end = _motion_times(tr)
     t = np.arange(0.0, t_end, 1.0 / fs)
     depth, vel = _motion(t, tr)
-    path = tip_path(geom, tr["e_lat_mm"], tr["tilt_rad"], tr["kappa0_per_mm"])
+    path = _settled_tip_path(geom, tr)
     th_tip, th_bot = _angles(depth, path, tr, ds["theta_bot_floor"])
     con = th_tip - th_bot
     arc = contact_arc(geom, th_bot, th_tip)
