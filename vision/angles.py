@@ -266,6 +266,14 @@ class MeasureConfig:
         edges are not used: blur and the smoothing along the channel mix the band into them.
     edge_level : float
         Coverage (0 fluid, 1 array) at which edges and the tip are located.
+    body_fill : float
+        Least median, over the array's stations, of the mean coverage (0 fluid, 1 array) between
+        a station's two edges: below it the frame has no array (a body is mostly dark between its
+        edges; the grain of noise or compression is not).
+    fluid_run : float
+        Share of the array's tip diameter (dimensionless) the fluid beside an edge must span
+        across the channel, unless it reaches the wall: a bright highlight along the middle of a
+        round, lit array is narrower, and is not taken for the fluid.
     max_gap_mm : float
         Longest stretch (mm) along the array that may look like fluid (a metal band as bright
         as the fluid) without ending it.
@@ -315,6 +323,8 @@ class MeasureConfig:
     body_level: float = 0.8
     border_px: int = 1
     edge_level: float = 0.5
+    fluid_run: float = 0.4
+    body_fill: float = 0.6
     max_gap_mm: float = 0.8
     min_contrast: float = 18.0
     gap_smooth_mm: float = 0.4
@@ -898,8 +908,14 @@ def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) 
     return j + np.minimum(np.maximum(t, 0.0), 1.0)
 
 
-def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel offsets where coverage falls below ``level`` either side of ``seed``.
+def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float, run: np.ndarray | None = None,
+                    wall: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel offsets where coverage falls below ``level`` either side of ``seed``, into the fluid.
+
+    A lit array shows a bright stripe along its middle (a specular highlight on a round body),
+    which can fall below the half level without being fluid. An edge is therefore only where the
+    coverage then stays below the level for ``run`` offsets, or up to the wall margin: the fluid
+    beside the array reaches the wall, a highlight inside it does not.
 
     Parameters
     ----------
@@ -909,11 +925,16 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[
         An offset inside the array at each station.
     level : float
         Crossing level.
+    run : ndarray, shape (n,), optional
+        Offsets the fluid must span at each station (default 1: the first crossing).
+    wall : ndarray, shape (n,), optional
+        First offset clear of the inner wall at each station (a run reaching it, or reaching the
+        same margin from the outer wall, counts whatever its length; default 0).
 
     Returns
     -------
     low, high : ndarray, shape (n,)
-        Fractional offset index (see :func:`_crossing`) of the nearest crossing below and
+        Fractional offset index (see :func:`_crossing`) of the nearest such crossing below and
         above ``seed`` at each station; NaN where there is none.
     """
     m, n = cover.shape
@@ -921,8 +942,19 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float) -> tuple[
     s = seed.astype(np.int16)
     cols = np.arange(n)
     below = cover < level
-    lo_idx = ((below & (j < s)) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1  # -1: none
-    hi_idx = m - ((below & (j > s)) * (np.int16(m) - j)).max(axis=0).astype(np.intp)  # m: none
+    if run is not None:
+        need = np.maximum(np.ceil(run), 1.0).astype(np.int16)[None, :]
+        margin = np.floor(wall if wall is not None else np.zeros(n)).astype(np.int16)[None, :]
+        # consecutive offsets below the level ending at j going down, and starting at j going up
+        last_above = np.maximum.accumulate(np.where(below, np.int16(-1), j), axis=0)
+        next_above = np.minimum.accumulate(np.where(below, np.int16(m), j)[::-1], axis=0)[::-1]
+        down, up = j - last_above, next_above - j
+        fluid_low = below & ((down >= need) | (last_above < margin))
+        fluid_high = below & ((up >= need) | (next_above > np.int16(m - 1) - margin))
+    else:
+        fluid_low = fluid_high = below
+    lo_idx = ((fluid_low & (j < s)) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1  # -1: none
+    hi_idx = m - ((fluid_high & (j > s)) * (np.int16(m) - j)).max(axis=0).astype(np.intp)  # m: none
     both = np.full(2 * n, np.nan)  # low, then high
     j_both = np.concatenate([lo_idx, hi_idx - 1])
     ok = np.concatenate([lo_idx >= 0, hi_idx < m])
@@ -1683,6 +1715,35 @@ def _fine_strip(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Strip:
     return _Strip(lo, n, fine, fluid, contrast, cover, seed, darkness, half, px, wall)
 
 
+def _fill(cover: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Mean coverage between the edges ``low`` and ``high`` (fractional offset indices) at each
+    station (NaN where an edge is missing)."""
+    m, n = cover.shape[0], len(low)
+    ok = np.isfinite(low) & np.isfinite(high)
+    a = np.clip(np.where(ok, np.ceil(low), 0), 0, m - 1).astype(np.intp)
+    b = np.clip(np.where(ok, np.floor(high), 0), 0, m - 1).astype(np.intp)
+    ok &= b >= a
+    cs = np.vstack([np.zeros((1, n)), np.cumsum(cover[:, :n], axis=0)])
+    cols = np.arange(n)
+    mean = (_at(cs, b + 1, cols) - _at(cs, a, cols)) / np.maximum(b - a + 1, 1)
+    return np.where(ok, mean, np.nan)
+
+
+def _filled(fill: np.ndarray, body: np.ndarray, least: float) -> bool:
+    """Whether the array's body is mostly dark between its edges: the median of ``fill`` over the
+    ``body`` stations is at least ``least`` (a highlight along the middle of a round array takes a
+    third of it at most; the grain of noise or of compression fills half)."""
+    values = fill[body & np.isfinite(fill)]
+    return len(values) == 0 or _quantile(values, 0.5) >= least
+
+
+def _fluid_run(plan: MeasurePlan, px: np.ndarray) -> np.ndarray:
+    """Offsets (per station, ``px`` px each) the fluid beside an edge must span: a share
+    (:attr:`MeasureConfig.fluid_run`) of the array's tip diameter, at least 2 px."""
+    ppm = float(plan.pose.px_per_mm)
+    return np.maximum(plan.cfg.fluid_run * 2.0 * plan.r_tip_mm * ppm, 2.0) / px
+
+
 def _edge_levels(
     c_fluid: np.ndarray, c_array: np.ndarray, fluid_ok: np.ndarray, array_ok: np.ndarray
 ) -> tuple[float, float]:
@@ -1710,6 +1771,8 @@ def _edges_from(plan: MeasurePlan, st: _Strip, low: np.ndarray, high: np.ndarray
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
     if body is None:
         body = _erode(_body_mask(plan, st, c_f, c_a), cfg.border_px)
+    if not _filled(_fill(st.cover, low, high), body, cfg.body_fill):
+        body = np.zeros_like(body)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
     return _Edges(st.lo, n, st.fine, st.fluid, st.contrast, st.seed, v_in, v_out, body & (v_in >= -half),
                   body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
@@ -1720,7 +1783,7 @@ def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
     cfg, step = plan.cfg, plan.step_mm
     st = _fine_strip(img, plan, sv)
     cover, n = st.cover, st.n
-    low, high = _half_crossings(cover[:, :n], st.seed[:n], cfg.edge_level)
+    low, high = _half_crossings(cover[:, :n], st.seed[:n], cfg.edge_level, _fluid_run(plan, st.px), st.wall)
     body = _erode(st.darkness[:n] >= cfg.body_level, cfg.border_px)  # not the stations at a band's border
     # the levels of the fluid and of the array beside the inner edge: the global estimates are
     # off where the lighting is uneven, the array fills the entry, or noise biases the fluid
@@ -2047,7 +2110,7 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     px = du * half * ppm  # px per offset index at each station
     wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
     # the edges (_edges)
-    low, high = _half_crossings(cover, seed_a, cfg.edge_level)
+    low, high = _half_crossings(cover, seed_a, cfg.edge_level, _fluid_run(plan, px), wall)
     body = _erode_ragged(dark_a >= cfg.body_level, arr, cfg.border_px)
     c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), px, wall, cfg.plateau_px)
     c_f = np.where(arr.count(fluid_ok) >= 10, _row_quantiles(arr.pad(c_fluid, 0.0), arr.pad(fluid_ok, False), 0.5), 0.0)
@@ -2070,6 +2133,11 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     cf, ca = c_f[arr.row], c_a[arr.row]
     body = _erode_ragged((dark_a - cf) / (ca - cf) >= cfg.body_level, arr, cfg.border_px)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
+    fill = _fill(cover, low, high)
+    for b in range(arr.n.size):  # a frame whose "body" is not dark between its edges has no array
+        sl = slice(int(arr.start[b]), int(arr.start[b] + arr.n[b]))
+        if not _filled(fill[sl], body[sl], cfg.body_fill):
+            body[sl] = False
     ok_in, ok_out = body & (v_in >= -half), body & (v_out <= half)  # NaN compares False
     out = []
     for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), strip.n.tolist(), arr.start.tolist(), arr.n.tolist())):
