@@ -832,31 +832,6 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
-def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
-    """Last station of the dark run that starts in the probe stations, bridging short gaps.
-
-    Parameters
-    ----------
-    dark : ndarray, shape (n,), bool
-        Stations that hold the array.
-    probe : ndarray, int
-        Stations (at the entry's outer end) where the run must start.
-    max_gap : float
-        Longest stretch (stations) of non-dark stations bridged.
-
-    Returns
-    -------
-    int
-        The run's last station, or −1 when no probe station is dark.
-    """
-    first = probe[dark[probe]]
-    if len(first) == 0:
-        return -1
-    idx = np.flatnonzero(dark[first[0] :]) + first[0]
-    breaks = np.flatnonzero(np.diff(idx) - 1 > max_gap)
-    return int(idx[breaks[0]] if len(breaks) else idx[-1])
-
-
 def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
     """:func:`_array_run` of each row (frame) of ``dark``, shape (B, n): the last station of
     the dark run that starts at the first dark probe station, bridging gaps up to ``max_gap``
@@ -1176,29 +1151,6 @@ def _running_median(x: np.ndarray, size: int) -> np.ndarray:
     return np.partition(x[idx], h, axis=1)[:, h]
 
 
-def _inliers(residual: np.ndarray, valid: np.ndarray, tol: float) -> np.ndarray:
-    """Valid stations whose residual from a smooth fit is not an outlier.
-
-    Parameters
-    ----------
-    residual : ndarray, shape (n,)
-        Deviation (any unit) of each station's value from a smooth fit.
-    valid : ndarray, shape (n,), bool
-        Stations where the values were measured.
-    tol : float
-        Smallest deviation (unit of ``residual``) counted as an outlier; the threshold is the
-        larger of ``tol`` and three robust standard deviations of the valid residuals.
-
-    Returns
-    -------
-    ndarray, shape (n,), bool
-    """
-    dev = np.abs(residual)
-    if valid.sum() < 3:
-        return valid
-    return valid & (dev <= max(tol, 3.0 * 1.4826 * _quantile(dev[valid], 0.5)))
-
-
 def _extrapolate(stations: np.ndarray, values: np.ndarray, at: float, span: float) -> float:
     """Value at station ``at`` of a straight line fitted to the last ``span`` stations measured.
 
@@ -1381,58 +1333,12 @@ class _Survey:
     tip_est: int
 
 
-def _survey(img: np.ndarray, plan: MeasurePlan) -> _Survey | FrameMeasurement:
-    """Find the array in the coarse strip: fluid and array levels, and where the array ends."""
-    if plan.refusal is not None:
-        return _fail(plan.refusal)
-    cfg, step, sa = plan.cfg, plan.step_mm, max(1, int(plan.cfg.coarse_stride))
-    coarse = cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    coarse = cv2.blur(coarse.astype(np.float32, copy=False), (3, 3))
-    low = coarse + plan.coarse_penalty
-    seed_c = low.argmin(axis=0)
-    darkest = low[seed_c, np.arange(low.shape[1])]
-    seed_c += plan.coarse_row0
-    brightest = cv2.reduce(coarse - plan.coarse_penalty, 0, cv2.REDUCE_MAX)[0]
-    pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
-    steepest = cv2.reduce(np.abs(coarse[1:] - coarse[:-1]) - pair_penalty, 0, cv2.REDUCE_MAX)[0]
-    view_c = plan.in_view[::sa]
-    probe = np.flatnonzero((plan.p_mm[::sa] <= cfg.probe_mm) & view_c)
-    if len(probe) == 0:
-        return _fail("entry out of view")
-    block = int(round(cfg.fluid_window_mm / (sa * step)))
-    reach = int(np.ceil(cfg.fluid_reach_mm / cfg.fluid_window_mm))
-    min_beside = int(np.ceil(cfg.beside_mm / (sa * step)))
-    fluid_c = _fluid_level(brightest, view_c, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
-    rho = _array_ratio(darkest, brightest, steepest, fluid_c, view_c, min_beside)
-    if not rho == rho:  # NaN: the array is nowhere seen beside the fluid
-        return _fail("array not in channel")
-    # second look, at stations whose brightest value is the fluid's: the array's body (not
-    # near a band, whose brightness may exceed the fluid's) and plain fluid
-    contrast_c = fluid_c * (1.0 - rho)
-    body = (fluid_c - darkest) / contrast_c >= cfg.body_level
-    trusted = view_c & (_erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
-    fluid_c = _fluid_level(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
-    rho = _array_ratio(darkest, brightest, steepest, fluid_c, view_c, min_beside)
-    if not rho == rho:
-        return _fail("array not in channel")
-    contrast = _quantile(fluid_c[probe], 0.5) * (1.0 - rho)
-    if contrast < cfg.min_contrast:
-        return _fail("array not in channel", contrast=contrast)
-    dark = ((1.0 - darkest / fluid_c) / (1.0 - rho) >= cfg.dark_level) & view_c
-    tip_c = _array_run(dark, probe, cfg.max_gap_mm / (sa * step))
-    if tip_c < 0:
-        return _fail("array not in channel", contrast=contrast)
-    if not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
-        return _fail("tip out of view", contrast=contrast)
-    return _Survey(fluid_c, rho, contrast, seed_c, sa * tip_c)
-
-
 # --------------------------------------------------------------------------- stage 1 on a batch
 #
 # The survey of B frames at once (measure_frames_batch): the coarse strip is the same for
-# every frame of a plan, so the strips are stacked along a leading axis and each step of
-# _survey runs once per batch (the remap and the blur stay per frame). Every step reproduces
-# the per-frame arithmetic, dtypes included, so the results are those of _survey.
+# every frame of a plan, so the strips are stacked along a leading axis and each step runs
+# once per batch (the remap and the blur stay per frame); every step works row by row, so a
+# frame's survey does not depend on the others in its batch.
 
 
 def _fluid_levels(
@@ -1671,50 +1577,6 @@ class _Edges:
     level: float
 
 
-@dataclass(frozen=True)
-class _Strip:
-    """Stage 2's inputs: the fine strip from station ``lo`` (``fine``, grey levels), the
-    fluid level and the contrast per station (grey levels), the coverage ``cover`` (0 fluid,
-    1 array), the darkest offset ``seed``, the ``darkness`` at it, the number ``n`` of array
-    stations, and per array station the channel's half-width ``half`` (mm), px per offset
-    index ``px`` and the first offset clear of the inner wall ``wall``."""
-
-    lo: int
-    n: int
-    fine: np.ndarray
-    fluid: np.ndarray
-    contrast: np.ndarray
-    cover: np.ndarray
-    seed: np.ndarray
-    darkness: np.ndarray
-    half: np.ndarray
-    px: np.ndarray
-    wall: np.ndarray
-
-
-def _fine_strip(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Strip:
-    """The fine strip of the stations that hold the array, and its coverage (stage 2)."""
-    cfg, step, ppm = plan.cfg, plan.step_mm, float(plan.pose.px_per_mm)
-    sa, n_all = max(1, int(cfg.coarse_stride)), len(plan.p_mm)
-    span = max(4, int(np.ceil(0.4 / step)))
-    lo = plan.i_start if sv.tip_est > plan.i_start + span else 0
-    hi = min(sv.tip_est + sa + span + 1, n_all)
-    fine = cv2.remap(img, plan.map_x[:, lo:hi], plan.map_y[:, lo:hi], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
-    fluid = np.interp(np.arange(lo, hi), sa * np.arange(len(sv.fluid_c)), sv.fluid_c)
-    contrast = fluid * (1.0 - sv.rho)
-    cover = cv2.blur(fine, (3, 1)).astype(np.float32) * (-1.0 / contrast) + fluid / contrast
-    seed = np.minimum(sa * np.repeat(sv.seed_c, sa)[lo:hi], len(plan.u) - 1)
-    darkness = np.where(plan.in_view[lo:hi], cover[seed, np.arange(hi - lo)], 0.0)
-    dark = np.flatnonzero(darkness[: min(sv.tip_est + sa, hi - 1) - lo + 1] >= cfg.dark_level)
-    n = (int(dark[-1]) if len(dark) else sv.tip_est - lo) + 1
-    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
-    half = plan.half_mm[lo : lo + n]
-    px = du * half * ppm  # px per offset index at each station
-    wall = (-1.0 + cfg.wall_margin_px / (half * ppm) - u0) / du  # first offset clear of the inner wall
-    return _Strip(lo, n, fine, fluid, contrast, cover, seed, darkness, half, px, wall)
-
-
 def _fill(cover: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Mean coverage between the edges ``low`` and ``high`` (fractional offset indices) at each
     station (NaN where an edge is missing)."""
@@ -1744,62 +1606,6 @@ def _fluid_run(plan: MeasurePlan, px: np.ndarray) -> np.ndarray:
     return np.maximum(plan.cfg.fluid_run * 2.0 * plan.r_tip_mm * ppm, 2.0) / px
 
 
-def _edge_levels(
-    c_fluid: np.ndarray, c_array: np.ndarray, fluid_ok: np.ndarray, array_ok: np.ndarray
-) -> tuple[float, float]:
-    """The frame's fluid and array coverage beside the inner edge (medians), or 0 and 1
-    where too few stations or an implausible difference (< 0.3) leave the global levels."""
-    c_f = _quantile(c_fluid[fluid_ok], 0.5) if fluid_ok.sum() >= 10 else 0.0
-    c_a = _quantile(c_array[array_ok], 0.5) if array_ok.sum() >= 10 else 1.0
-    if c_a - c_f < 0.3:  # implausible: keep the global levels
-        c_f, c_a = 0.0, 1.0
-    return c_f, c_a
-
-
-def _body_mask(plan: MeasurePlan, st: _Strip, c_f: float, c_a: float) -> np.ndarray:
-    """The stations dark enough for the array's body between the frame's levels ``c_f`` and
-    ``c_a`` (coverage), before erosion."""
-    return (st.darkness[: st.n] - c_f) / (c_a - c_f) >= plan.cfg.body_level
-
-
-def _edges_from(plan: MeasurePlan, st: _Strip, low: np.ndarray, high: np.ndarray, c_f: float,
-                c_a: float, body: np.ndarray | None = None) -> _Edges:
-    """Stage 2's result from the relevelled inner edge ``low`` and the outer edge ``high``
-    (fractional offset indices) and the frame's levels ``c_f``, ``c_a`` (coverage); ``body``,
-    the eroded :func:`_body_mask`, when already computed."""
-    cfg, n, half = plan.cfg, st.n, st.half
-    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
-    if body is None:
-        body = _erode(_body_mask(plan, st, c_f, c_a), cfg.border_px)
-    if not _filled(_fill(st.cover, low, high), body, cfg.body_fill):
-        body = np.zeros_like(body)
-    v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
-    return _Edges(st.lo, n, st.fine, st.fluid, st.contrast, st.seed, v_in, v_out, body & (v_in >= -half),
-                  body & (v_out <= half), 0.5 * (c_f + c_a))  # NaN compares False
-
-
-def _edges(img: np.ndarray, plan: MeasurePlan, sv: _Survey) -> _Edges:
-    """The array's inner and outer edge at each station of the fine strip."""
-    cfg, step = plan.cfg, plan.step_mm
-    st = _fine_strip(img, plan, sv)
-    cover, n = st.cover, st.n
-    low, high = _half_crossings(cover[:, :n], st.seed[:n], cfg.edge_level, _fluid_run(plan, st.px), st.wall)
-    body = _erode(st.darkness[:n] >= cfg.body_level, cfg.border_px)  # not the stations at a band's border
-    # the levels of the fluid and of the array beside the inner edge: the global estimates are
-    # off where the lighting is uneven, the array fills the entry, or noise biases the fluid
-    c_fluid, c_array, fluid_ok, array_ok = _plateaus(cover, low, body & np.isfinite(low), st.px, st.wall,
-                                                     cfg.plateau_px)
-    c_f, c_a = _edge_levels(c_fluid, c_array, fluid_ok, array_ok)
-    level = np.full(n, 0.5 * (c_f + c_a))
-    window = _odd(2.0 * cfg.gap_smooth_mm / step)
-    if fluid_ok.sum() >= 3:  # where the fluid shows clear of the wall, the local levels
-        (lf, la), _ = _smooth_valid(np.vstack([c_fluid, c_array]), fluid_ok, window)
-        near = _near(fluid_ok, window)
-        level = np.where(near, 0.5 * (lf + la), level)
-    low = _relevel(cover, low, np.isfinite(low), level)
-    return _edges_from(plan, st, low, high, c_f, c_a)
-
-
 @dataclass(frozen=True)
 class _CentreLine:
     """Stage 3: the tip (fractional station ``tip_f`` from ``lo``, point ``tip_mm``), and per
@@ -1815,58 +1621,6 @@ class _CentreLine:
     width_ratio: float  # seen width over modelled width, median where both edges show (NaN: < 10 such)
 
 
-def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
-    """The array's centre line, its tip and its gap to the outer wall (None without edges, or
-    where the edges seen on both sides do not have the array's width)."""
-    cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
-    lo, n = e.lo, e.n
-    stations = np.arange(n)
-    point, normal, half = plan.point_mm[lo : lo + n], plan.normal[lo : lo + n], plan.half_mm[lo : lo + n]
-    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
-    k_smooth = _odd(cfg.gap_smooth_mm / step)
-    tol = cfg.outlier_px / ppm
-    span = max(4, int(np.ceil(0.4 / step)))
-    # pass 1: distance from the tip along the backbone, array parallel to the channel
-    s = plan.p_mm[lo + n - 1] - plan.p_mm[lo : lo + n]
-    v_c, measured, _ = _centre_offsets(e.v_in, e.v_out, e.ok_in, e.ok_out, s, np.ones(n), array, cfg.cap_min, tol)
-    idx = np.flatnonzero(measured)
-    if len(idx) < 3:
-        return None
-    med = np.zeros(n)
-    med[idx] = _running_median(v_c[idx], k_smooth)
-    measured = _inliers(v_c - med, measured, tol)
-    fit, slant = _smooth_valid(v_c[None, :], measured, _odd(2.5 * cfg.gap_smooth_mm / step))
-    centre, stretch = fit[0], np.sqrt(1.0 + (slant[0] / step) ** 2)
-    # the tip: the half-level crossing along the centre line, extrapolated from the body
-    last = int(np.flatnonzero(measured)[-1])
-    if (n - 1 - last) * step <= cfg.tip_reach_mm:
-        tip_v = _extrapolate(stations[measured], v_c[measured], float(n - 1), 1.0 / step)
-    else:  # no body seen near the tip: the darkest offset of the last dark stations
-        tip_v = (u0 + du * float(np.median(e.seed[max(n - 1 - span, 0) : n]))) * float(half[-1])
-    tip_u = min(max(tip_v / float(half[-1]), -1.0), 1.0)
-    k0 = max(n - 1 - span, 0)
-    along = e.fluid[k0:] - _sample_offsets(e.fine[:, k0:], (tip_u - u0) / du, np.array([-1.0, 0.0, 1.0]))
-    tip_f = k0 + _tip_crossing(along / e.contrast[k0:], e.level, float(n - 1 - k0))
-    tip_mm = plan.to_mm(np.array([lo + tip_f]), np.array([tip_u]))[0]
-    # pass 2: distance along the measured centre line, slant across the channel -> gaps
-    s = _distance_from_tip(point + centre[:, None] * normal, tip_mm, stations, tip_f)
-    v_c, measured2, radius = _centre_offsets(e.v_in, e.v_out, e.ok_in, e.ok_out, s, stretch, array, cfg.cap_min, tol)
-    measured &= measured2 & (stations <= tip_f)
-    if measured.sum() < 3:
-        return None
-    # where both edges show, the array must be about as wide as it is (noise is not)
-    both = e.ok_in & e.ok_out & (stations <= tip_f) & (s >= plan.r_tip_mm)
-    width = 2.0 * radius * stretch
-    width_ratio = math.nan
-    if both.sum() >= 10:
-        fits = np.abs(e.v_out - e.v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
-        if fits[both].mean() < 0.5:
-            return None
-        width_ratio = _quantile((e.v_out - e.v_in)[both] / width[both], 0.5)
-    centre, gap = _smooth_valid(np.vstack([v_c, half - v_c - radius * stretch]), measured, k_smooth)[0]
-    return _CentreLine(tip_f, tip_mm, point + centre[:, None] * normal, gap, radius, measured, width_ratio)
-
-
 # --------------------------------------------------------------------------- stages 2–3 on a batch
 #
 # Stages 2 and 3 of B frames in lock-step (measure_frames_batch). The frames' stations are laid
@@ -1876,8 +1630,8 @@ def _centre_line(plan: MeasurePlan, e: _Edges) -> _CentreLine | None:
 # padded to a common length; _smooth_valid, whose windows must stop at each frame's last
 # station, on frames padded with invalid (zero-weight) stations, which leaves every frame's
 # cumulative sums, and so its fits, exactly what they are alone. The only Python loops left are
-# the per-frame remaps and the results' assembly. Results equal _edges and _centre_line frame by
-# frame (to rounding: a few sums add in another order).
+# the per-frame remaps and the results' assembly. A frame's results do not depend on the others
+# in its batch (to rounding: a few sums add in another order).
 
 
 @dataclass(frozen=True, eq=False)
@@ -2075,7 +1829,8 @@ def _fill_rows(fit: np.ndarray, known: np.ndarray, unknown: np.ndarray, x: np.nd
 
 
 def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Survey]) -> list[_Edges]:
-    """:func:`_edges` of each frame (with its survey), equal to it frame by frame."""
+    """Stage 2: the array's inner and outer edge at each station that holds it, in each frame
+    (with its survey; see the notes above :class:`MeasureConfig`)."""
     cfg, step, ppm = plan.cfg, plan.step_mm, float(plan.pose.px_per_mm)
     sa, n_all = max(1, int(cfg.coarse_stride)), len(plan.p_mm)
     span = max(4, int(np.ceil(0.4 / step)))
@@ -2193,7 +1948,8 @@ def _running_median_ragged(x: np.ndarray, rg: _Ragged, size: int) -> np.ndarray:
 
 
 def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
-    """:func:`_centre_line` of each frame's edges, equal to it frame by frame."""
+    """Stage 3: each frame's centre line, tip and gap to the outer wall (None without edges, or
+    where the edges seen on both sides do not have the array's width)."""
     cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
     k_smooth = _odd(cfg.gap_smooth_mm / step)
@@ -2444,57 +2200,10 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     return results
 
 
-def _measure(img: np.ndarray, plan: MeasurePlan) -> FrameMeasurement:
-    """The measurement proper (see the notes above :class:`MeasureConfig`), with stage timings."""
-    if img.shape[:2] != plan.image_shape:
-        raise ValueError(f"frame shape {img.shape[:2]} does not match the plan's {plan.image_shape}")
-    t0 = time.perf_counter()
-    sv = _survey(img, plan)
-    return _after_survey(img, plan, sv, time.perf_counter() - t0)
-
-
-def _after_survey(img: np.ndarray, plan: MeasurePlan, sv: _Survey | FrameMeasurement,
-                  survey_s: float) -> FrameMeasurement:
-    """Stages 2–4 of a frame whose survey (stage 1, ``survey_s`` seconds) gave ``sv``."""
-    timings = {"survey": survey_s}
-    if isinstance(sv, FrameMeasurement):
-        sv.timings.update(timings)
-        return sv
-    t1 = time.perf_counter()
-    e = _edges(img, plan, sv)
-    t2 = time.perf_counter()
-    c = _centre_line(plan, e)
-    t3 = time.perf_counter()
-    timings.update(edges=t2 - t1, centre_line=t3 - t2)
-    if c is None:
-        failed = _fail("array edges not found", contrast=sv.contrast)
-        failed.timings.update(timings)
-        return failed
-    result = _result(plan, e, c, _extras(sv.contrast, c))
-    timings["angles"] = time.perf_counter() - t3
-    result.timings.update(timings)
-    return result
-
-
 def _extras(contrast: float, c: _CentreLine) -> dict[str, float]:
     """The diagnostics of a frame with a centre line (see :class:`FrameMeasurement`'s ``extras``):
     its ``contrast`` (grey levels), edge fraction and width ratio."""
     return dict(contrast=contrast, edge_fraction=float(c.measured.sum()) / len(c.measured), width_ratio=c.width_ratio)
-
-
-def _staged_result(plan: MeasurePlan, sv: _Survey, e: _Edges, c: _CentreLine | None,
-                   timings: dict[str, float]) -> FrameMeasurement:
-    """Stage 4 of a frame whose stages 1–3 (``timings``, s) gave ``sv``, ``e`` and ``c``: what
-    :func:`_after_survey` returns for it."""
-    if c is None:
-        failed = _fail("array edges not found", contrast=sv.contrast)
-        failed.timings.update(timings)
-        return failed
-    t0 = time.perf_counter()
-    result = _result(plan, e, c, _extras(sv.contrast, c))
-    timings["angles"] = time.perf_counter() - t0
-    result.timings.update(timings)
-    return result
 
 
 def measure_frame(
@@ -2556,11 +2265,7 @@ def measure_frame(
         t0 = time.perf_counter()
     else:
         plan = registration
-    try:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            result = _measure(img, plan)
-    except (ValueError, IndexError, FloatingPointError, cv2.error) as exc:
-        result = _fail(f"measurement failed: {type(exc).__name__}: {exc}")
+    result = _measure_batch([img], plan)[0]
     result.extras["time_ms"] = 1e3 * (time.perf_counter() - t0)
     return result
 
@@ -2575,8 +2280,8 @@ def measure_frames_batch(
     NumPy calls for the whole batch instead of per frame; the edges, the centre line and the
     angles (stages 2–4) run on all frames' stations laid end to end (see the notes above
     :class:`_Ragged`), so that only the remaps and the assembly of the results are per frame.
-    The results equal :func:`measure_frame`'s frame by frame to rounding (the per-frame
-    function stays the reference; ``tests/test_angles_batch.py`` compares them to 1e-9).
+    :func:`measure_frame` is a batch of one: a frame's result does not depend on the others
+    in its batch (``tests/test_angles_batch.py``).
 
     Parameters
     ----------
@@ -2595,11 +2300,9 @@ def measure_frames_batch(
 
     Notes
     -----
-    Frames that are not valid images, or not of the plan's shape, and any batch whose joint
-    survey raises, are measured one by one with :func:`measure_frame`; a batch whose joint
-    stages 2–3 (or 4) raise gets them (or it) frame by frame.
+    Frames that are not valid images, or not of the plan's shape, are measured one by one with
+    :func:`measure_frame`; a batch whose joint stages raise is measured again frame by frame.
     """
-    t0 = time.perf_counter()
     results: list[FrameMeasurement | None] = [None] * len(grays)
     imgs: list[np.ndarray] = []
     where: list[int] = []
@@ -2613,67 +2316,55 @@ def measure_frames_batch(
         else:
             imgs.append(img)
             where.append(i)
-    if imgs:
-        surveys: list[_Survey | FrameMeasurement | None]
-        try:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                surveys = list(_survey_batch(imgs, plan))
-        except (ValueError, IndexError, FloatingPointError, cv2.error):
-            surveys = [None] * len(imgs)
-        t1 = time.perf_counter()
-        share_s = (t1 - t0) / len(imgs)
-        found = {k: sv for k, sv in enumerate(surveys) if isinstance(sv, _Survey)}  # the frames stage 1 passed
-        todo = list(found)
-        staged: dict[int, tuple[_Edges, _CentreLine | None]] = {}
-        edges_s = centre_s = 0.0
-        if todo:
-            try:  # stages 2-3 together; on any error, frame by frame below
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    edges = _edges_batch([imgs[k] for k in todo], plan, list(found.values()))
-                    t2 = time.perf_counter()
-                    lines = _centre_line_batch(plan, edges)
-                    t3 = time.perf_counter()
-                staged = {k: (e, c) for k, e, c in zip(todo, edges, lines)}
-                edges_s, centre_s = (t2 - t1) / len(todo), (t3 - t2) / len(todo)
-            except (ValueError, IndexError, FloatingPointError, cv2.error):
-                staged = {}
-        done: dict[int, FrameMeasurement] = {}
-        lines_found = {k: (e, c) for k, (e, c) in staged.items() if c is not None}
-        measured = list(lines_found)
-        if measured:
-            t4 = time.perf_counter()
-            try:  # stage 4 together; on any error, frame by frame below
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    finals = _results_batch(plan, [
-                        (e, c, _extras(found[k].contrast, c))
-                        for k, (e, c) in lines_found.items()])
-                angles_s = (time.perf_counter() - t4) / len(measured)
-                for k, result in zip(measured, finals):
-                    result.timings.update(survey=share_s, edges=edges_s, centre_line=centre_s, angles=angles_s)
-                    result.extras["time_ms"] = 1e3 * (share_s + edges_s + centre_s + angles_s)
-                    done[k] = result
-            except (ValueError, IndexError, FloatingPointError, cv2.error):
-                done = {}
-        for k, (i, img, sv) in enumerate(zip(where, imgs, surveys)):
-            if k in done:
-                results[i] = done[k]
-                continue
-            t4 = time.perf_counter()
-            if sv is None:
-                results[i] = measure_frame(img, plan)
-                continue
-            try:
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    if k in staged:
-                        result = _staged_result(plan, found[k], *staged[k], dict(survey=share_s, edges=edges_s,
-                                                                           centre_line=centre_s))
-                        spent_s = share_s + edges_s + centre_s
-                    else:
-                        result = _after_survey(img, plan, sv, share_s)
-                        spent_s = share_s
-            except (ValueError, IndexError, FloatingPointError, cv2.error) as exc:
-                result = _fail(f"measurement failed: {type(exc).__name__}: {exc}")
-                spent_s = share_s
-            result.extras["time_ms"] = 1e3 * (spent_s + time.perf_counter() - t4)
-            results[i] = result
+    for i, result in zip(where, _measure_batch(imgs, plan)):
+        results[i] = result
     return [r for r in results if r is not None]
+
+
+_ERRORS = (ValueError, IndexError, FloatingPointError, cv2.error)
+
+
+def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasurement]:
+    """The four stages on grey frames of the plan's shape, all frames at once.
+
+    A batch whose joint stages raise is measured again frame by frame; a single frame that
+    raises gives ``ok=False`` with the error as the reason.
+    """
+    if not imgs:
+        return []
+    t0 = time.perf_counter()
+    try:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            surveys = list(_survey_batch(imgs, plan))
+            t1 = time.perf_counter()
+            found = [k for k, sv in enumerate(surveys) if isinstance(sv, _Survey)]  # the frames stage 1 passed
+            edges = _edges_batch([imgs[k] for k in found], plan, [surveys[k] for k in found]) if found else []
+            t2 = time.perf_counter()
+            lines = _centre_line_batch(plan, edges) if found else []
+            t3 = time.perf_counter()
+            measured = [j for j, c in enumerate(lines) if c is not None]
+            finals = _results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j]))
+                                           for j in measured]) if measured else []
+            t4 = time.perf_counter()
+    except _ERRORS as exc:
+        if len(imgs) > 1:
+            return [r for img in imgs for r in _measure_batch([img], plan)]
+        return [_fail(f"measurement failed: {type(exc).__name__}: {exc}")]
+    share = [(t1 - t0) / len(imgs), (t2 - t1) / max(len(found), 1), (t3 - t2) / max(len(found), 1),
+             (t4 - t3) / max(len(measured), 1)]
+    out: list[FrameMeasurement] = []
+    by_frame = {found[j]: j for j in range(len(found))}
+    final_of = dict(zip(measured, finals))
+    for k, sv in enumerate(surveys):
+        if not isinstance(sv, _Survey):
+            result = sv
+            result.timings.update(survey=share[0])
+        elif final_of.get(by_frame[k]) is None:
+            result = _fail("array edges not found", contrast=sv.contrast)
+            result.timings.update(survey=share[0], edges=share[1], centre_line=share[2])
+        else:
+            result = final_of[by_frame[k]]
+            result.timings.update(survey=share[0], edges=share[1], centre_line=share[2], angles=share[3])
+        result.extras["time_ms"] = 1e3 * sum(result.timings.values())
+        out.append(result)
+    return out
