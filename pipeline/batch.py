@@ -48,6 +48,7 @@ import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
 from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
+from pipeline.kinematics import KinematicsConfig, flag_kinematics
 from vision.errors import InputError, is_input_error, one_line
 from vision.frames import Frame, FrameSource, LensCalibration, check_decoder_threads, open_frames, to_gray, undistorter
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
@@ -133,6 +134,11 @@ class ExtractConfig:
         A measured frame whose theta_tip or theta_bot lies more than this (rad) from the median
         of it and its two measured neighbours on each side is marked not ok as a glitch
         (:func:`flag_glitches`); 0 keeps every frame.
+    kinematics_tol_mm : float
+        A measured frame whose insertion depth lies more than this (mm; or five robust standard
+        deviations of the video's depths about it, if more) from the video's constant-speed
+        insertion is marked not ok (:func:`pipeline.kinematics.flag_kinematics`), in runs as
+        well as alone; 0 keeps every frame.
     calibration : vision.frames.LensCalibration or None
         The camera's lens. Frames are undistorted with it (:func:`vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole
@@ -154,6 +160,7 @@ class ExtractConfig:
     measure_batch_mb: float = 32.0
     decoder_threads: int | None = None
     glitch_rad: float = 0.25
+    kinematics_tol_mm: float = 0.5
     calibration: LensCalibration | None = None
 
     def __post_init__(self) -> None:
@@ -166,6 +173,8 @@ class ExtractConfig:
         check_decoder_threads(self.decoder_threads)
         if not self.glitch_rad >= 0:
             raise ValueError(f"glitch_rad must be >= 0 rad, not {self.glitch_rad!r}")
+        if not self.kinematics_tol_mm >= 0:
+            raise ValueError(f"kinematics_tol_mm must be >= 0 mm, not {self.kinematics_tol_mm!r}")
         if not self.measure_batch_mb > 0:
             raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):
@@ -650,6 +659,10 @@ def extract_video(
     if glitches:
         notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
                      "median of its measured neighbours)")
+    if cfg.kinematics_tol_mm > 0:
+        runs, note = flag_kinematics(rows, KinematicsConfig(tol_mm=cfg.kinematics_tol_mm))
+        if note:
+            notes.append(note)
     width = array_width(rows, cfg.array)
     if width["warning"]:
         notes.append(width["warning"])

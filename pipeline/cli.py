@@ -72,6 +72,9 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--glitch-rad", type=nonneg_float, default=0.25, metavar="RAD",
                        help="mark a frame not ok when an angle lies this far (rad) from the running median of its "
                             "measured neighbours (0: never; default 0.25)")
+    group.add_argument("--kinematics-tol", type=nonneg_float, default=0.5, metavar="MM",
+                       help="mark frames not ok, in runs as well as alone, whose insertion depth lies this far (mm) "
+                            "from the video's constant-speed insertion (0: never; default 0.5)")
     group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
                        help="the electrode array's diameters in mm at its tip and its base (default: SPEC's 0.6,1.2)")
     group.add_argument("--calibration", metavar="JSON",
@@ -88,7 +91,8 @@ def _extract_config(args: argparse.Namespace):
     array = DEFAULT_ARRAY if args.array_diameters is None else replace(
         DEFAULT_ARRAY, tip_diameter_mm=args.array_diameters[0], base_diameter_mm=args.array_diameters[1])
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
-                         glitch_rad=args.glitch_rad, calibration=calibration, array=array)
+                         glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
+                         calibration=calibration, array=array)
 
 
 # --------------------------------------------------------------------------- extract
@@ -414,7 +418,7 @@ def _run_run(args: argparse.Namespace) -> int:
     command = ["tympani", "run", "--manifest", args.manifest, "--out", args.out, "--workers", str(args.workers),
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
-               "--glitch-rad", str(args.glitch_rad)]
+               "--glitch-rad", str(args.glitch_rad), "--kinematics-tol", str(args.kinematics_tol)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []

@@ -278,7 +278,8 @@ def test_window_medians_equal_the_clipped_windows_one_by_one():
 
 def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
     """A frame measured 1.7 rad off its neighbours (here a fake measurement of an odd frame) is
-    marked not ok in the angles table, with a warning; glitch_rad=0 keeps it."""
+    marked not ok in the angles table, with a warning; glitch_rad=0 leaves it to the kinematics
+    check (its depth is off the insertion too); both off keep it."""
     fakes.install(monkeypatch)
     path = tmp_path / "g.mp4"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (fakes.W, fakes.H))
@@ -290,16 +291,22 @@ def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
     assert table.loc[table["frame"] == 5, "reason"].item().startswith("glitch: theta_tip")
     assert any("1 frame(s) marked not ok as glitches" in w for w in table.attrs["warnings"])
     table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0))
+    assert table.loc[table["frame"] == 5, "reason"].item().startswith("kinematics: depth")
+    assert any("1 frame(s) marked not ok off the constant-speed insertion" in w for w in table.attrs["warnings"])
+    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0))
     assert table["ok"].all()
     # the command line: --glitch-rad reaches the extraction; a negative value is a usage error
     from pipeline.cli import main
 
-    monkeypatch.setattr("pipeline.cli._extract_config", lambda args: fakes.fake_config(glitch_rad=args.glitch_rad))
+    monkeypatch.setattr("pipeline.cli._extract_config", lambda args: fakes.fake_config(
+        glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol))
     for rad, ok in (("0.25", False), ("0", True)):
-        assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad]) == 0
+        assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad,
+                     "--kinematics-tol", rad if rad == "0" else "0.5"]) == 0
         angles = pd.read_csv(tmp_path / rad / "g.angles.csv")
         assert bool(angles.loc[angles["frame"] == 5, "ok"].item()) is ok
     assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--glitch-rad", "-1"]) == 2
+    assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--kinematics-tol", "-1"]) == 2
 
 
 def test_registration_failure_is_input_error(tmp_path, fake_vision):
