@@ -156,17 +156,18 @@ def test_random_ensemble_heavy_nuisance(ensemble: list[dict]) -> None:
 
 def test_depth_estimate(ensemble: list[dict]) -> None:
     """``extras['depth_mm']`` (length of centre line from the tip to theta_start) follows the
-    insertion depth: median error under 0.3 mm (0.03 mm when written)."""
+    insertion depth, also just past theta_start where the measured line still starts in the
+    entry: every error under 0.1 mm (at most 0.05 mm when written)."""
     rng = np.random.default_rng(7)
     pose = random_pose(rng, W, H, px_per_mm=(25.0, 25.0))
     plan = prepare_measurement(_reg(pose), (H, W))
     scene = Scene(pose, W, H, Appearance(), Nuisance(), rng=rng)
     errs = []
-    for depth in (4.0, 9.0, 14.0, 19.0):
+    for depth in (0.3, 0.8, 4.0, 9.0, 14.0, 19.0):
         m = measure_frame(_gray(scene.render(pose_at_depth(depth))), plan)
         assert m.ok
         errs.append(abs(m.extras["depth_mm"] - depth))
-    assert np.median(errs) < 0.3
+    assert max(errs) < 0.1, errs
 
 
 def test_scale_floor_refuses_every_frame_below_it() -> None:

@@ -274,6 +274,9 @@ class MeasureConfig:
         Share of the array's tip diameter (dimensionless) the fluid beside an edge must span
         across the channel, unless it reaches the wall: a bright highlight along the middle of a
         round, lit array is narrower, and is not taken for the fluid.
+    min_body_mm : float
+        Least length (mm) of array basal of the tip whose edges are sought, even where part of it
+        is still in the entry channel (beyond, the edges are sought from theta_start on).
     max_gap_mm : float
         Longest stretch (mm) along the array that may look like fluid (a metal band as bright
         as the fluid) without ending it.
@@ -325,6 +328,7 @@ class MeasureConfig:
     edge_level: float = 0.5
     fluid_run: float = 0.4
     body_fill: float = 0.6
+    min_body_mm: float = 2.0
     max_gap_mm: float = 0.8
     min_contrast: float = 18.0
     gap_smooth_mm: float = 0.4
@@ -1837,7 +1841,8 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
     # the fine strips (_fine_strip), laid end to end
     tips = np.array([sv.tip_est for sv in surveys], dtype=np.intp)
-    lo = np.where(tips > plan.i_start + span, plan.i_start, 0)
+    body = int(np.ceil(cfg.min_body_mm / step))  # the stations basal of the tip the centre line needs
+    lo = np.maximum(np.minimum(tips - body, plan.i_start), 0)
     hi = np.minimum(tips + sa + span + 1, n_all)
     fines = [cv2.remap(img, plan.map_x[:, a:b], plan.map_y[:, a:b], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
              for img, a, b in zip(imgs, lo.tolist(), hi.tolist())]
@@ -2095,52 +2100,16 @@ def _tip_crossing_ragged(cover_at: np.ndarray, level: np.ndarray, fallback: np.n
     return np.where(k >= 0, k + t, fallback)
 
 
-def _result_points(plan: MeasurePlan, e: _Edges, c: _CentreLine) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stage 4's stations ``keep`` (every ~``angle_step_mm``, tip first), its centre line
-    (tip, then the kept stations' points) and the points whose SPEC angles it needs: the tip
-    alone when it is in the entry channel, else the centre line."""
-    stations = np.arange(e.n)
-    keep = stations[stations <= c.tip_f][::-1][:: max(1, int(round(plan.cfg.angle_step_mm / plan.step_mm)))]
-    centreline = np.vstack([c.tip_mm[None, :], c.line[keep]])
-    return keep, centreline, centreline[:1] if e.lo + c.tip_f < plan.i_start else centreline
-
-
-def _result_from(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float], keep: np.ndarray,
-                 centreline: np.ndarray, theta: np.ndarray) -> FrameMeasurement:
-    """Stage 4's result from :func:`_result_points` (``keep``, ``centreline``) and the SPEC
-    angles of its points."""
-    cfg, lo = plan.cfg, e.lo
-    gaps = np.concatenate([c.gap[keep[:1]] if len(keep) else c.gap[-1:], c.gap[keep]])
-    radii = np.concatenate([[plan.r_tip_mm], c.radius[keep]])
-    if lo + c.tip_f < plan.i_start:  # tip in the entry channel: theta = phi (SPEC §2), no contact
-        theta_tip = float(theta[0])
-        angles = ContactAngles(theta_tip, theta_tip, 0.0, c.tip_mm, c.tip_mm)
-        extras["depth_mm"] = -float(plan.p_mm[plan.i_start] - plan.p_mm[lo] - c.tip_f * plan.step_mm)
-    else:
-        angles = contact_angles(centreline, radii, plan.phantom, contact_tol_mm=cfg.contact_tol_mm, gap_mm=gaps,
-                                theta=theta)
-        d = centreline[1:] - centreline[:-1]
-        extras["depth_mm"] = float(np.hypot(d[:, 0], d[:, 1]).sum())
-    side = radii[1:, None] * plan.normal[lo + keep]
-    outline = np.vstack([c.tip_mm[None, :], centreline[1:] - side, (centreline[1:] + side)[::-1]])
-    return FrameMeasurement(
-        True, "", angles.theta_tip, angles.theta_bot, angles.theta_con, angles.tip_mm, angles.bot_mm,
-        centreline, outline, gaps, extras,
-    )
-
-
-def _result(plan: MeasurePlan, e: _Edges, c: _CentreLine, extras: dict[str, float]) -> FrameMeasurement:
-    """The SPEC angles of the measured centre line (every ~``angle_step_mm``, tip first)."""
-    keep, centreline, points = _result_points(plan, e, c)
-    return _result_from(plan, e, c, extras, keep, centreline, _spiral_angle(points, plan.angles))
-
-
 def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, dict[str, float]]]
                    ) -> list[FrameMeasurement]:
-    """:func:`_result` of several frames, equal to it frame by frame: the frames' centre-line
-    points laid end to end (a :class:`_Ragged` batch), their SPEC angles in one call
-    (:func:`_spiral_angle` works point by point) and :func:`contact_angles`' rule, the depth
-    and the outline for all frames at once."""
+    """Stage 4: each frame's angles, depth and outline from its centre line, all frames at once.
+
+    The centre line is the tip, then every ``angle_step_mm`` of stations from the last one at or
+    before the tip, basal-wards; the frames' points are laid end to end (a :class:`_Ragged`
+    batch), their angles taken in one call (:func:`_spiral_angle` works point by point) and
+    :func:`contact_angles`' rule applied to all frames at once. The depth is the centre line's
+    length from the tip to ``theta_start`` (negative, along the entry, when the tip is still in
+    the entry channel)."""
     cfg, step = plan.cfg, plan.step_mm
     k = max(1, int(round(cfg.angle_step_mm / step)))
     los = np.array([e.lo for e, _, _ in staged], dtype=np.intp)
@@ -2148,7 +2117,7 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     tip_mm = np.array([c.tip_mm for _, c, _ in staged])
     n = np.array([e.n for e, _, _ in staged], dtype=np.intp)
     line, gap, radius = (np.concatenate([getattr(c, name) for _, c, _ in staged]) for name in ("line", "gap", "radius"))
-    # the kept stations (_result_points): every k-th from the last one at or before the tip
+    # the kept stations: every k-th from the last one at or before the tip
     top = np.minimum(np.floor(tip_f).astype(np.intp), n - 1)
     kept = _Ragged.of(top // k + 1)
     keep = top[kept.row] - k * kept.local  # station in its frame
@@ -2179,6 +2148,8 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     seg = np.hypot(seg[:, 0], seg[:, 1])
     seg[cl.start[1:] - 1] = 0.0  # between frames
     depth = np.add.reduceat(np.append(seg, 0.0), cl.start)
+    basal = los + keep[kept.start + kept.n - 1]  # a line that starts in the entry: less its part there
+    depth -= np.maximum(plan.p_mm[plan.i_start] - plan.p_mm[basal], 0.0)
     entry = los + tip_f < plan.i_start  # tip in the entry channel: theta = phi (SPEC §2), no contact
     theta_bot = np.where(entry, theta_tip, theta_bot)
     bot = np.where(entry[:, None], tip_mm, bot)
