@@ -212,6 +212,12 @@ class MeasureConfig:
     contact_tol_mm : float
         Largest gap (mm) between the array's outer edge and the outer wall that counts as
         contact (SPEC §3).
+    contact_persist_mm : float
+        An excursion of the measured gap above ``contact_tol_mm`` shorter than this (mm, along
+        the array), after which contact holds again for as long, is measurement noise and does
+        not end the contact run (a real departure from the wall widens steadily).
+    contact_excess_mm : float
+        Excess gap (mm) over ``contact_tol_mm`` beyond which an excursion always ends the run.
     station_step_px : float
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float
@@ -277,6 +283,26 @@ class MeasureConfig:
     min_body_mm : float
         Least length (mm) of array basal of the tip whose edges are sought, even where part of it
         is still in the entry channel (beyond, the edges are sought from theta_start on).
+    bubble_bright : float
+        Highest coverage (dimensionless, 0 fluid, 1 array) of a bubble's interior.
+    bubble_min_mm2 : float
+        Least area (mm²) of a bubble's interior.
+    bubble_max_mm : float
+        Largest radius (mm) of a bubble's interior.
+    bubble_fill : tuple of float
+        Least and largest share (dimensionless) of its bounding box a bubble's interior fills (a
+        disc: 0.79; a band, a rectangle: about 1).
+    bubble_wider : float
+        Width (dimensionless, times the array's tip diameter) above which an enclosed bright
+        region cannot be a band.
+    bubble_rim_mm : float
+        Longest dark stretch (mm) along the array's path beyond a narrower one for it to be a
+        bubble's rim rather than more array.
+    bubble_aspect : float
+        Largest ratio (dimensionless) of the longer to the shorter side of that box.
+    bubble_track_mm : float
+        Length (mm) of the dark stations before a bubble whose median darkest offset is the
+        array's path.
     max_gap_mm : float
         Longest stretch (mm) along the array that may look like fluid (a metal band as bright
         as the fluid) without ending it.
@@ -308,6 +334,8 @@ class MeasureConfig:
     """
 
     contact_tol_mm: float = 0.05
+    contact_persist_mm: float = 0.5
+    contact_excess_mm: float = 0.1
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
     min_step_mm: float = 0.03
@@ -329,6 +357,14 @@ class MeasureConfig:
     fluid_run: float = 0.4
     body_fill: float = 0.6
     min_body_mm: float = 2.0
+    bubble_bright: float = 0.3
+    bubble_min_mm2: float = 0.02
+    bubble_max_mm: float = 0.9
+    bubble_fill: tuple[float, float] = (0.5, 0.86)
+    bubble_aspect: float = 2.5
+    bubble_wider: float = 1.15
+    bubble_rim_mm: float = 0.2
+    bubble_track_mm: float = 0.6
     max_gap_mm: float = 0.8
     min_contrast: float = 18.0
     gap_smooth_mm: float = 0.4
@@ -834,6 +870,77 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
         out[..., :k] = False
         out[..., -k:] = False
     return out
+
+
+def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
+                step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
+    """Where the array ends when an air bubble sits at or ahead of its tip.
+
+    A bubble shows as a bright interior inside a closed dark rim. Along the channel its rim reads
+    as more array (the rim is as dark as the array, and its interior no longer than a band) and
+    across the channel the darkest offset jumps to the rim, so the dark run goes on past the tip.
+    Its interior, unlike the fluid beyond the tip, is a bright region enclosed on all sides: a
+    compact, round component of the bright pixels of the channel's interior. A metal band can be
+    enclosed too (by the array's shaded edges) but is a rectangle no wider than the array, with
+    the array's body beyond it; a bubble's interior is round and either wider than the array or
+    followed, along the array's path, by no more than a thin rim. The array ends before the
+    first such component on its path, less the rim's thickness (that of the rim beyond the
+    interior): at the last dark station before it.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (offsets, stations)
+        Coverage (0 fluid, 1 array) of one frame's fine strip from some stations basal of the
+        dark end on.
+    dark : ndarray, shape (stations,), bool
+        Stations dark at their darkest offset.
+    seed : ndarray, shape (stations,), int
+        Each station's darkest offset.
+    inside : ndarray, shape (offsets,), bool
+        Offsets clear of the walls.
+    end : int
+        The dark run's last station (index into the window).
+    step_mm, offset_mm : float
+        Station and offset spacing (mm).
+    diameter_mm : float
+        The array's diameter (mm) near its tip.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    end : int
+        The array's last station (``end`` when no bubble is on its path; -1 when none is left).
+    stop : int or None
+        The first station of the bubble's rim (the tip lies before it), or None.
+    """
+    bright = ((cover <= cfg.bubble_bright) & inside[:, None]).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=4)
+    m, n = cover.shape
+    x, y, w, h, area = (stats[1:, k] for k in range(5))
+    len_mm, wid_mm = w * step_mm, h * offset_mm
+    px_mm2 = step_mm * offset_mm
+    compact = ((x > 0) & (x + w < n) & (y > 0) & (y + h < m) & (area * px_mm2 >= cfg.bubble_min_mm2)
+               & (np.maximum(len_mm, wid_mm) <= 2.0 * cfg.bubble_max_mm)
+               & (area >= cfg.bubble_fill[0] * w * h) & (area <= cfg.bubble_fill[1] * w * h)
+               & (len_mm <= cfg.bubble_aspect * wid_mm) & (wid_mm <= cfg.bubble_aspect * len_mm))
+    for k in np.flatnonzero(compact)[np.argsort(x[compact])].tolist():
+        before = np.flatnonzero(dark[: x[k]])
+        if len(before) == 0 or x[k] > end + 1 + int(np.ceil(cfg.max_gap_mm / step_mm)):
+            continue
+        track = np.median(seed[before[-int(np.ceil(cfg.bubble_track_mm / step_mm)):]])
+        if not (y[k] <= track < y[k] + h[k]):  # beside the array's path, not on it
+            continue
+        rim = 0  # the rim beyond the interior, dark at the path's offset
+        row = int(round(track))
+        while x[k] + w[k] + rim < n and cover[row, x[k] + w[k] + rim] >= cfg.dark_level:
+            rim += 1
+        if wid_mm[k] < cfg.bubble_wider * diameter_mm and rim * step_mm > cfg.bubble_rim_mm:
+            continue  # as narrow as a band, and array beyond it
+        stop = max(int(x[k]) - rim, 0)
+        last = np.flatnonzero(dark[:stop])
+        return (int(last[-1]) if len(last) else -1), stop
+    return end, None
 
 
 def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
@@ -1843,7 +1950,8 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     tips = np.array([sv.tip_est for sv in surveys], dtype=np.intp)
     body = int(np.ceil(cfg.min_body_mm / step))  # the stations basal of the tip the centre line needs
     lo = np.maximum(np.minimum(tips - body, plan.i_start), 0)
-    hi = np.minimum(tips + sa + span + 1, n_all)
+    hi0 = np.minimum(tips + sa + span + 1, n_all)  # where the tip is sought
+    hi = np.minimum(hi0 + int(np.ceil((2.0 * cfg.bubble_max_mm + 0.3) / step)), n_all)  # and a bubble beyond
     fines = [cv2.remap(img, plan.map_x[:, a:b], plan.map_y[:, a:b], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
              for img, a, b in zip(imgs, lo.tolist(), hi.tolist())]
     strip = _Ragged.of(hi - lo)
@@ -1859,6 +1967,18 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     darkness = np.where(np.take(plan.in_view, station), at_seed, 0.0)
     first_n = np.minimum(tips + sa, hi - 1) - lo + 1  # stations where the array's dark end is sought
     last_dark = strip.last((darkness >= cfg.dark_level) & (strip.local < first_n[strip.row]))
+    extent = hi0 - lo
+    back = int(np.ceil((2.0 * cfg.bubble_max_mm + cfg.max_gap_mm + cfg.bubble_track_mm) / step))
+    inner = np.abs(plan.u)
+    for b in np.flatnonzero(last_dark >= 0).tolist():  # an air bubble at or ahead of the tip
+        end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
+        cols = slice(int(strip.start[b]) + a, int(strip.start[b] + strip.n[b]))
+        half_b = float(np.median(plan.half_mm[lo[b] + a : lo[b] + strip.n[b]]))
+        cut, stop = _bubble_end(blurred[:, cols] * scale[cols] + shift[cols], darkness[cols] >= cfg.dark_level,
+                                seed[cols], inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm), end - a, step, du * half_b,
+                                2.0 * plan.r_tip_mm, cfg)
+        if stop is not None:
+            last_dark[b], extent[b] = max(cut + a, 0), stop + a
     # the stations that hold the array
     arr = _Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
     take = strip.start[arr.row] + arr.local
@@ -1900,9 +2020,9 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
             body[sl] = False
     ok_in, ok_out = body & (v_in >= -half), body & (v_out <= half)  # NaN compares False
     out = []
-    for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), strip.n.tolist(), arr.start.tolist(), arr.n.tolist())):
+    for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), extent.tolist(), arr.start.tolist(), arr.n.tolist())):
         a = slice(s, s + m)
-        out.append(_Edges(int(lo[b]), m, fines[b], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
+        out.append(_Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
                           v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b]))))
     return out
 
@@ -2130,9 +2250,21 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     gaps = np.empty(len(cl.row))
     gaps[cl.start], gaps[inner] = gap[at[kept.start]], gap[at]
     theta = _spiral_angle(points, plan.angles)
-    # contact_angles: the contact run from the tip ends where the gap first exceeds the tolerance
+    # contact_angles' rule: the contact run from the tip ends where the gap first exceeds the
+    # tolerance, but not at a blip of measurement noise: an excursion shorter than
+    # contact_persist_mm, by less than contact_excess_mm, after which contact holds again for
+    # contact_persist_mm (a real departure from the wall widens steadily)
     touching = gaps <= cfg.contact_tol_mm
-    away = np.where(~touching, cl.local, cl.n[cl.row])
+    pos = np.arange(len(gaps))
+    end = (cl.start + cl.n)[cl.row]
+    # the next touching / non-touching point of each point's frame, or the frame's end (a later
+    # frame's points all lie at or beyond this frame's end, so the running minimum stays in it)
+    next_touch = np.minimum.accumulate(np.where(touching, pos, end)[::-1])[::-1]
+    next_away = np.minimum.accumulate(np.where(~touching, pos, end)[::-1])[::-1]
+    persist = int(np.ceil(cfg.contact_persist_mm / cfg.angle_step_mm))
+    resumes = next_away[np.minimum(next_touch, len(gaps) - 1)] - next_touch >= persist
+    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= cfg.contact_tol_mm + cfg.contact_excess_mm)
+    away = np.where(~touching & ~blip, cl.local, cl.n[cl.row])
     out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
     i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
     i0 = cl.start + np.maximum(i_last, 0)
