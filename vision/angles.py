@@ -318,8 +318,9 @@ class MeasureConfig:
         Nearest and farthest distance (px) from the array's inner edge of the samples whose
         coverage gives the local fluid and array levels the edge is relocated between.
     tip_reach_mm : float
-        Farthest (mm) the centre line is extrapolated from the last measured station to the
-        tip; beyond, the tip's offset is the darkest offset of the last dark stations.
+        Farthest (mm) the centre line is extrapolated from the last station with measured edges
+        to the tip; a frame whose dark run goes on farther is not measured (what continues it
+        is not the array's body: a bubble's rim, a shadow, a doubled wall line).
     cap_min : float
         Stations of the rounded tip closer to the tip than this fraction of its radius are not
         used for edges (farther cap stations are, with the half disc's width).
@@ -404,8 +405,9 @@ class FrameMeasurement:
         ``edge_fraction`` (fraction of the array's stations whose edges were used),
         ``width_ratio`` (the array's width between its two edges over the modelled
         :class:`~vision.geometry.ElectrodeArray`'s, median over the stations where both show;
-        NaN where fewer than 10 do: about 1.01 when the model is right), ``time_ms`` (ms spent
-        on the frame).
+        NaN where fewer than 10 do: about 1.01 when the model is right), ``bare_tip_mm`` (length
+        of the array, mm, between its last station with measured edges and the tip: the tip's
+        offset is extrapolated over it), ``time_ms`` (ms spent on the frame).
     timings : dict of str to float
         Seconds spent per stage (``survey``, ``edges``, ``centre_line``, ``angles``); not in
         :meth:`to_row`.
@@ -1364,12 +1366,6 @@ def _centre_offsets(
         Width across the channel over the array's width (1 / cosine of its slant).
     array : ElectrodeArray
         The array (radius along its length; the tip is a half disc).
-    plateau_px : tuple of float
-        Nearest and farthest distance (px) from the array's inner edge of the samples whose
-        coverage gives the local fluid and array levels the edge is relocated between.
-    tip_reach_mm : float
-        Farthest (mm) the centre line is extrapolated from the last measured station to the
-        tip; beyond, the tip's offset is the darkest offset of the last dark stations.
     cap_min : float
         Stations closer to the tip than this fraction of the tip radius are not used.
     tol_mm : float
@@ -2072,15 +2068,17 @@ def _running_median_ragged(x: np.ndarray, rg: _Ragged, size: int) -> np.ndarray:
     return np.partition(x[idx], h, axis=1)[:, h]
 
 
-def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | None]:
-    """Stage 3: each frame's centre line, tip and gap to the outer wall (None without edges, or
-    where the edges seen on both sides do not have the array's width)."""
+def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLine | str]:
+    """Stage 3: each frame's centre line, tip and gap to the outer wall, or why there is none: no
+    edges, the edges seen on both sides do not have the array's width, or no edges within
+    ``tip_reach_mm`` of the tip (the dark run goes on where no array shows: a bubble's rim, a
+    shadow, a doubled wall line)."""
     cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
     k_smooth = _odd(cfg.gap_smooth_mm / step)
     tol = cfg.outlier_px / ppm
     span = max(4, int(np.ceil(0.4 / step)))
-    out: list[_CentreLine | None] = [None] * len(edges)
+    out: list[_CentreLine | str] = ["array edges not found"] * len(edges)
     rg = _Ragged.of([e.n for e in edges])
     lo = np.array([e.lo for e in edges], dtype=np.intp)
     station = lo[rg.row] + rg.local
@@ -2110,9 +2108,9 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     last = rg.last(measured)
     half_tip = plan.half_mm[lo + n - 1]
     tip_v = _extrapolate_ragged(local.astype(float), v_c, measured & (local >= (last - 1.0 / step)[row]), 1.0 / step, rg)
-    for b in np.flatnonzero((n - 1 - last) * step > cfg.tip_reach_mm):  # no body near the tip: the darkest
-        e = edges[live[b]]  # offset of the last dark stations
-        tip_v[b] = (u0 + du * float(np.median(e.seed[max(e.n - 1 - span, 0) : e.n]))) * float(half_tip[b])
+    bare = (n - 1 - last) * step > cfg.tip_reach_mm  # no array edges near the tip
+    for b in np.flatnonzero(bare):
+        out[int(live[b])] = f"no array edges within {cfg.tip_reach_mm:g} mm of the dark run's end"
     tip_u = np.minimum(np.maximum(tip_v / half_tip, -1.0), 1.0)
     k0 = np.maximum(n - 1 - span, 0)
     tail = _Ragged.of([len(edges[b].fluid) - k for b, k in zip(live.tolist(), k0.tolist())])
@@ -2142,7 +2140,7 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     fits = np.abs(v_out - v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
     n_both = rg.count(both)
     good &= ~((n_both >= 10) & (rg.count(fits & both) / np.maximum(n_both, 1) < 0.5))
-    keep = np.flatnonzero(good)
+    keep = np.flatnonzero(good & ~bare)
     if not len(keep):
         return out
     seen = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
@@ -2303,10 +2301,13 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     return results
 
 
-def _extras(contrast: float, c: _CentreLine) -> dict[str, float]:
+def _extras(contrast: float, c: _CentreLine, step_mm: float) -> dict[str, float]:
     """The diagnostics of a frame with a centre line (see :class:`FrameMeasurement`'s ``extras``):
-    its ``contrast`` (grey levels), edge fraction and width ratio."""
-    return dict(contrast=contrast, edge_fraction=float(c.measured.sum()) / len(c.measured), width_ratio=c.width_ratio)
+    its ``contrast`` (grey levels), edge fraction, width ratio and bare tip length."""
+    seen = np.flatnonzero(c.measured)
+    bare = (c.tip_f - seen[-1]) * step_mm if len(seen) else math.nan
+    return dict(contrast=contrast, edge_fraction=float(len(seen)) / len(c.measured), width_ratio=c.width_ratio,
+                bare_tip_mm=float(bare))
 
 
 def measure_frame(
@@ -2445,8 +2446,8 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             t2 = time.perf_counter()
             lines = _centre_line_batch(plan, edges) if found else []
             t3 = time.perf_counter()
-            measured = [j for j, c in enumerate(lines) if c is not None]
-            finals = _results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j]))
+            measured = [j for j, c in enumerate(lines) if isinstance(c, _CentreLine)]
+            finals = _results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j], plan.step_mm))
                                            for j in measured]) if measured else []
             t4 = time.perf_counter()
     except _ERRORS as exc:
@@ -2463,7 +2464,7 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             result = sv
             result.timings.update(survey=share[0])
         elif final_of.get(by_frame[k]) is None:
-            result = _fail("array edges not found", contrast=sv.contrast)
+            result = _fail(str(lines[by_frame[k]]), contrast=sv.contrast)
             result.timings.update(survey=share[0], edges=share[1], centre_line=share[2])
         else:
             result = final_of[by_frame[k]]

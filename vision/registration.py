@@ -209,6 +209,25 @@ class Registration:
         Canny smoothing (px) used; :func:`check` uses the same.
     image_size : tuple of int
         ``(width, height)`` (px) of the frames registered.
+    walls_doubled : bool
+        Whether every wall showed twice, the second copy shifted by one image vector
+        (``parallax_px``): the top and bottom edges of a thick plate's walls seen at an angle
+        (SPEC §2 "What a frame shows"). ``pose`` is then that of the *first copy*, the one
+        with the stronger edges (the second copy is a fainter replica), and the residual,
+        inlier and check statistics count an edge of either copy. The copies are told apart
+        where they are resolved: about 1 px for wall lines (the union of two overlapping
+        lines is fitted as such) and 2.5 px for region boundaries, whose two steps merge into
+        one edge below that; a doubling too small to resolve is not reported (and moves
+        the pose by at most about a third of the parallax).
+    parallax_px : tuple of float
+        Image displacement ``(dx, dy)`` (px, x right, y down) of the second wall copy from the
+        first; ``(0, 0)`` unless ``walls_doubled``. Where the copies overlap (wall lines
+        closer than their width) it is measured from the union's outer edges, which can read
+        up to about a third short.
+    second_copy_contrast : float
+        Edge strength of the second copy relative to the first (0–1, the ratio of median
+        gradient magnitudes at edges of the two copies); NaN when the walls are single or
+        where the copies were never resolved.
     """
 
     pose: CameraPose
@@ -219,10 +238,20 @@ class Registration:
     line_half_width_px: float = float("nan")
     edge_sigma_px: float = 1.0
     image_size: tuple[int, int] = (0, 0)
+    walls_doubled: bool = False
+    parallax_px: tuple[float, float] = (0.0, 0.0)
+    second_copy_contrast: float = float("nan")
     _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
+    @property
+    def parallax_mm(self) -> float:
+        """Length (mm, in the phantom's plane) of :attr:`parallax_px`; 0 for single walls."""
+        return float(math.hypot(*self.parallax_px)) / float(self.pose.px_per_mm)
+
     def to_dict(self) -> dict:
-        """SPEC §6 registration keys plus the fit statistics (JSON-ready)."""
+        """SPEC §6 registration keys plus the fit statistics and the doubled walls (JSON-ready):
+        ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
+        ``wall_parallax_y_px`` and ``second_copy_contrast`` (NaN when unknown)."""
         p = self.pose
         return {
             "centre_x_px": float(p.centre_x_px),
@@ -238,6 +267,11 @@ class Registration:
             "edge_sigma_px": float(self.edge_sigma_px),
             "image_width_px": int(self.image_size[0]),
             "image_height_px": int(self.image_size[1]),
+            "walls_doubled": bool(self.walls_doubled),
+            "wall_parallax_mm": float(self.parallax_mm),
+            "wall_parallax_x_px": float(self.parallax_px[0]),
+            "wall_parallax_y_px": float(self.parallax_px[1]),
+            "second_copy_contrast": float(self.second_copy_contrast),
         }
 
     @classmethod
@@ -260,6 +294,9 @@ class Registration:
             line_half_width_px=float(d.get("line_half_width_px", nan)),
             edge_sigma_px=float(d.get("edge_sigma_px", 1.0)),
             image_size=(int(d.get("image_width_px", 0)), int(d.get("image_height_px", 0))),
+            walls_doubled=bool(d.get("walls_doubled", False)),
+            parallax_px=(float(d.get("wall_parallax_x_px", 0.0)), float(d.get("wall_parallax_y_px", 0.0))),
+            second_copy_contrast=float(d.get("second_copy_contrast", nan)),
         )
 
 
@@ -1306,17 +1343,27 @@ def _edge_layers(em: EdgeMap) -> np.ndarray:
 
 
 def _edge_distances(
-    layers: np.ndarray, pts: np.ndarray, nrm: np.ndarray, half_width: float | None, reach: float
+    layers: np.ndarray,
+    pts: np.ndarray,
+    nrm: np.ndarray,
+    half_width: float | None,
+    reach: float,
+    second: np.ndarray | None = None,
 ) -> np.ndarray:
     """Distance (px) along each normal from a wall's expected edge to the nearest edge pixel.
 
     Only edge pixels whose gradient is within 30° of the normal count. With ``half_width``
     given, an edge whose gradient points out of the channel is expected at ``+half_width``
     and one pointing in at ``-half_width``; with ``None``, any aligned edge counts from the
-    wall itself. Walls without an edge within ``reach`` get ``reach``.
+    wall itself. ``second`` (px, one per point), for doubled walls: the offset along the
+    normal of the wall's second copy, whose edges are expected as far from it; an edge counts
+    from the nearer copy. Walls without an edge within ``reach`` get ``reach``.
     """
     hw = 0.0 if half_width is None else abs(half_width)
-    t = np.arange(-reach - hw, reach + hw + 1e-9, 0.5, dtype=np.float32)
+    lo, hi = -reach - hw, reach + hw
+    if second is not None and len(second):
+        lo, hi = lo + min(float(second.min()), 0.0), hi + max(float(second.max()), 0.0)
+    t = np.arange(lo, hi + 1e-9, 0.5, dtype=np.float32)
     h, w = layers.shape[:2]
     px, py = pts[:, 0:1].astype(np.float32), pts[:, 1:2].astype(np.float32)
     nx, ny = nrm[:, 0:1].astype(np.float32), nrm[:, 1:2].astype(np.float32)
@@ -1333,6 +1380,8 @@ def _edge_distances(
     proj += prof[..., 1] * ny
     expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
     dist = offset - expected
+    if second is not None:
+        dist = np.minimum(np.abs(dist), np.abs(dist - second[:, None].astype(np.float32)))
     np.abs(dist, out=dist)
     stray = offset - t  # distance from the sample's own offset
     np.abs(stray, out=stray)
@@ -1395,14 +1444,21 @@ def _summarise(
 
 
 def _wall_fit_from(
-    pose: CameraPose, layers: np.ndarray, model: WallModel, half_width: float | None, tol: float
+    pose: CameraPose,
+    layers: np.ndarray,
+    model: WallModel,
+    half_width: float | None,
+    tol: float,
+    parallax_px: np.ndarray | None = None,
 ) -> WallFit:
-    """:class:`WallFit` of ``pose`` against a full-frame edge layer image."""
+    """:class:`WallFit` of ``pose`` against a full-frame edge layer image; with
+    ``parallax_px`` (px, image x and y), the walls' second copy that far away counts too."""
     pts, nrm = _image_points(pose, model)
     h, w = layers.shape[:2]
     vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
     reach = max(_REACH_PX, tol)
-    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach)
+    second = None if parallax_px is None else nrm[vis] @ np.asarray(parallax_px, dtype=float)
+    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second)
     sizes = np.bincount(model.group, minlength=4)
     return _summarise(dist, model.group[vis], len(pts), sizes, tol, model.spacing_mm, reach)
 
@@ -1427,8 +1483,10 @@ def _crop_fit(
     px_per_mm: float,
     half_width: float,
     tol: float,
+    parallax_px: np.ndarray | None = None,
 ) -> WallFit:
-    """:class:`WallFit` with Canny run only on the bounding box of the visible walls.
+    """:class:`WallFit` with Canny run only on the bounding box of the visible walls (and of
+    their second copy ``parallax_px`` away, px, when the walls are doubled).
 
     The crop is shrunk when the scale is large (distances are reported in full-resolution
     px), which keeps :func:`check` at a few milliseconds.
@@ -1439,7 +1497,8 @@ def _crop_fit(
     if not vis.any():
         return WallFit(float("inf"), 0.0, 0.0, 0.0)
     pts, nrm, group = pts[vis], nrm[vis], group[vis]
-    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width))) + 2
+    shift = np.zeros(2) if parallax_px is None else np.asarray(parallax_px, dtype=float)
+    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width) + np.abs(shift).max())) + 2
     x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int) - margin, 0)
     x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + margin + 1, [w, h])
     crop = frame[y0:y1, x0:x1]
@@ -1454,7 +1513,8 @@ def _crop_fit(
         f = size[0] / cw
         local = (local + 0.5) * f - 0.5
     em = detect_edges(crop, sigma_px=max(sigma_px * f, 0.7))
-    dist = _edge_distances(_edge_layers(em), local, nrm, half_width * f, _REACH_PX * f) / f
+    second = None if parallax_px is None else (nrm @ shift) * f
+    dist = _edge_distances(_edge_layers(em), local, nrm, half_width * f, _REACH_PX * f, second) / f
     n_total = int(sizes.sum())
     return _summarise(dist, group, n_total, sizes, tol, 0.0)
 
@@ -1472,7 +1532,7 @@ def wall_fit(
     gray : ndarray, shape (h, w) or (h, w, 3)
         Frame (grey or BGR, any dtype :func:`vision.edges.as_float_gray` accepts).
     registration : Registration
-        Pose, line half width and edge smoothing to test.
+        Pose, line half width, edge smoothing and doubled walls to test.
     phantom : Phantom
         Phantom geometry.
     cfg : RegistrationConfig
@@ -1497,7 +1557,530 @@ def wall_fit(
         registration.pose.px_per_mm,
         hw if np.isfinite(hw) else 0.0,
         cfg.inlier_tol_px,
+        np.asarray(registration.parallax_px, dtype=float) if registration.walls_doubled else None,
     )
+
+
+# --------------------------------------------------------------------------- spiral valley
+
+# Largest turn (rad) about the spiral centre that :func:`_valley_scan` tries either way.
+_VALLEY_MAX_RAD = math.radians(30.0)
+
+
+def _valley_pose(pose: CameraPose, delta: float, b_per_rad: float) -> CameraPose:
+    """``pose`` turned by ``delta`` (rad, added to ``rotation_rad``) about the spiral centre
+    and rescaled so that the exponential part of the spiral (``r = a exp(-b phi)``, ``b`` in
+    1/rad, with a width proportional to ``r``) falls on itself: the scale is multiplied by
+    ``exp(-b delta)``, or ``exp(+b delta)`` for a mirrored pose.
+    """
+    sign = 1.0 if pose.mirrored else -1.0
+    return CameraPose(
+        pose.centre_x_px,
+        pose.centre_y_px,
+        _wrap(pose.rotation_rad + delta),
+        pose.px_per_mm * math.exp(sign * b_per_rad * delta),
+        pose.mirrored,
+    )
+
+
+def _valley_scan(
+    pose: CameraPose,
+    pyramid: list[np.ndarray],
+    model: WallModel,
+    b_per_rad: float,
+    parallax_px: np.ndarray | None = None,
+) -> float:
+    """The turn (rad) along the spiral's self-similarity valley that best fits the walls that
+    break it, 0 when none fits better than ``pose`` itself.
+
+    Beyond the 100° corner the backbone is ``a exp(-b phi)`` with a width proportional to the
+    radius, so :func:`_valley_pose` moves those walls onto themselves: only the entry and the
+    first half-turn (groups 0 and 1 of :class:`WallModel`) tell the turns along this valley
+    apart, and a fit dominated by the rest of the spiral can settle anywhere on it (the
+    entry's walls then lie on the array or on nothing). Those walls are scored by their
+    orientation agreement with the doubled-angle field on the pyramid level where the phantom
+    appears at 8–16 px/mm, for turns up to ±30° in steps that move the farthest of them by
+    half a pixel of that level. With ``parallax_px`` (px, doubled walls) the walls' second
+    copy, shifted by it, is scored too.
+    """
+    level = int(np.clip(math.floor(math.log2(max(pose.px_per_mm, 1e-6) / 8.0)), 0, len(pyramid) - 1))
+    fld = pyramid[level]
+    f = 0.5**level
+    lp = _scaled_pose(pose, f)
+    keep = model.group <= 1
+    part = WallModel(model.points[keep], model.normals[keep], model.spacing_mm, model.group[keep])
+    part = part.subsample(1.0 / lp.px_per_mm)
+    r_max = float(np.max(np.hypot(part.points[:, 0], part.points[:, 1]))) * lp.px_per_mm
+    n_side = int(math.ceil(_VALLEY_MAX_RAD * r_max / 0.5))
+    deltas = np.linspace(-_VALLEY_MAX_RAD, _VALLEY_MAX_RAD, 2 * n_side + 1)
+    sign = 1.0 if lp.mirrored else -1.0
+    # the walls at every turn, (len(deltas), n): raising rotation_rad by delta turns the
+    # image about the centre by delta counter-clockwise on screen (x right, y down), mirrored
+    # or not, and scales it by g
+    pts, nrm = _image_points(lp, part)
+    centre = np.array([lp.centre_x_px, lp.centre_y_px])
+    rel = pts - centre
+    cs, sn = np.cos(deltas)[:, None], np.sin(deltas)[:, None]
+    g = np.exp(sign * b_per_rad * deltas)[:, None]
+    sx = (centre[0] + g * (cs * rel[:, 0] + sn * rel[:, 1])).astype(np.float32)
+    sy = (centre[1] + g * (-sn * rel[:, 0] + cs * rel[:, 1])).astype(np.float32)
+    nx = cs * nrm[:, 0] + sn * nrm[:, 1]
+    ny = -sn * nrm[:, 0] + cs * nrm[:, 1]
+    c2, s2 = nx * nx - ny * ny, 2.0 * nx * ny  # the walls' doubled angles
+    shifts = [(0.0, 0.0)] if parallax_px is None else [(0.0, 0.0), tuple(np.asarray(parallax_px) * f)]
+    score = np.zeros(len(deltas))
+    for dx, dy in shifts:
+        prof = cv2.remap(fld, sx + np.float32(dx), sy + np.float32(dy), cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        agree = prof[..., 0] * c2 + prof[..., 1] * s2
+        score += np.maximum(agree, 0.0).sum(axis=1)
+    best = int(np.argmax(score))
+    return float(deltas[best]) if score[best] > score[n_side] else 0.0
+
+
+# --------------------------------------------------------------------------- doubled walls
+
+# Two edges of the same polarity closer than this (px) show as one: a doubled region
+# boundary's two steps merge, and the merged edge is taken as the first (stronger) copy's.
+_MERGE_PX = 2.5
+# Two wall lines further apart than their width plus this gap (px) show their inner edges too.
+_LINE_GAP_PX = 1.0
+# A second copy's edge closer than this (px) to the first copy's is not counted as support.
+_RESOLVED_PX = 1.0
+# Doubled walls are reported when the second copy's resolved edges are expected at no fewer
+# than this fraction of the visible wall points ...
+_MIN_SECOND_SHOWN = 0.10
+# ... and at least this fraction of them lies on an edge (single walls give 0.08–0.2 to a
+# spurious shift, doubled ones 0.35–0.95).
+_MIN_SECOND_MATCHED = 0.30
+# Largest parallax (mm) looked for.
+_MAX_PARALLAX_MM = 0.55
+# Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
+_SURFACE_HALF_WIDTHS = (-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0)
+
+
+@dataclass(frozen=True)
+class _Copies:
+    """Doubled walls: the first copy's pose, the wall lines' half width (px, as
+    :attr:`Registration.line_half_width_px`) and the second copy's image shift (px)."""
+
+    pose: CameraPose
+    half_width: float
+    shift: tuple[float, float]
+
+    def swapped(self) -> "_Copies":
+        """The same walls with the copies' roles exchanged."""
+        dx, dy = self.shift
+        return _Copies(_translated(self.pose, (dx, dy)), self.half_width, (-dx, -dy))
+
+
+@dataclass(frozen=True)
+class _Support:
+    """Edges found where a two-copy fit expects them (counts over wall points and classes).
+
+    ``matched2`` and ``shown2`` count only the second copy's edges at least
+    :data:`_RESOLVED_PX` from the first copy's.
+    """
+
+    matched1: int
+    shown1: int
+    matched2: int
+    shown2: int
+    n_points: int
+
+    @property
+    def score(self) -> float:
+        """Matched edges less a quarter of those expected (about the share a random shift
+        matches), so that a shift onto stray edges does not pay."""
+        return self.matched1 + self.matched2 - 0.25 * (self.shown1 + self.shown2)
+
+    @property
+    def second_is_real(self) -> bool:
+        """Whether the second copy is expected at enough points and found at enough of them."""
+        return self.shown2 >= _MIN_SECOND_SHOWN * self.n_points and self.matched2 >= _MIN_SECOND_MATCHED * self.shown2
+
+
+def _translated(pose: CameraPose, shift: tuple[float, float] | np.ndarray) -> CameraPose:
+    """``pose`` moved by ``shift`` (px, image x and y)."""
+    return CameraPose(
+        float(pose.centre_x_px + shift[0]), float(pose.centre_y_px + shift[1]), pose.rotation_rad, pose.px_per_mm,
+        pose.mirrored,
+    )
+
+
+def _copy_offsets(
+    delta: np.ndarray, half_width: float, sign: float, lines: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where one polarity class's edge of each copy is expected, and whether it shows.
+
+    Parameters
+    ----------
+    delta : ndarray, shape (n,)
+        Offset (px) of the second copy along each wall normal.
+    half_width : float
+        Half width (px) of the wall lines (< 0: bright lines).
+    sign : float
+        The class: +1 for edges whose gradient points out of the channel, -1 into it.
+    lines : bool
+        Whether the walls are lines (an edge of each class) or region boundaries (one).
+
+    Returns
+    -------
+    e1, e2 : ndarray, shape (n,)
+        Expected offsets (px, along the normals) of the first and the second copy's edge.
+    shown1, shown2 : ndarray of bool, shape (n,)
+        Whether each shows. Two lines that overlap (closer than their width plus
+        :data:`_LINE_GAP_PX`) form one thicker line, which shows only the outer of the two
+        edges of a class. A region boundary's second step shows only beyond
+        :data:`_MERGE_PX`; nearer, the two merge into one edge, nearer the stronger copy.
+    """
+    e1 = np.full(delta.shape, sign * half_width)
+    e2 = e1 + delta
+    if not lines:
+        return e1, e2, np.ones(delta.shape, bool), np.abs(delta) > _MERGE_PX
+    apart = np.abs(delta) > 2.0 * abs(half_width) + _LINE_GAP_PX
+    # this class's edge lies on the side sign * sign(half_width) of its line
+    second_outer = sign * math.copysign(1.0, half_width) * delta > 0
+    return e1, e2, apart | ~second_outer, apart | second_outer
+
+
+def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_px: float = 4.0) -> tuple[float, ...]:
+    """The edge polarity classes the walls show near ``pose``: ``(1.0, -1.0)`` for lines
+    (an edge on each side), ``(1.0,)`` or ``(-1.0,)`` for region boundaries (gradient out of
+    or into the channel).
+
+    A class counts when its mean strongest response along the normals (within ``reach_px``,
+    px) is at least 35 % of the other class's.
+    """
+    pts, nrm = _image_points(pose, model)
+    vis = _visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    prof = _profiles(sfield, pts, nrm, np.arange(-reach_px, reach_px + 1e-9, 0.5))
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    out_of, into = float(proj.max(axis=1).mean()), float((-proj).max(axis=1).mean())
+    if min(out_of, into) >= 0.35 * max(out_of, into):
+        return (1.0, -1.0)
+    return (1.0,) if out_of > into else (-1.0,)
+
+
+def _refine_copies(
+    copies: _Copies,
+    sfield: np.ndarray,
+    model: WallModel,
+    classes: tuple[float, ...],
+    *,
+    sigma: float,
+    iterations: int,
+    max_half_width: float,
+    max_shift_px: float,
+    tol_px: float = 0.01,
+) -> _Copies:
+    """Polarity-aware refinement (as :func:`_refine_signed`) of doubled walls: pose, line half
+    width and the second copy's shift.
+
+    Each class's edge of each copy is expected where :func:`_copy_offsets` puts it; a copy's
+    edge that shows takes the samples within ``3 sigma`` (px) of it that are nearer to it than
+    to the other copy's edge of the class (where that shows), and their Gaussian-weighted
+    mean offset is one row of a weighted Gauss–Newton step (the second copy's rows also move
+    the shift). Region boundaries (one class) keep their half width.
+    """
+    gain = 1.0 + _FIELD_BLUR_VAR / sigma**2
+    u = np.arange(-3.0 * sigma, 3.0 * sigma + 1e-9, 0.5)
+    kernel = np.exp(-0.5 * (u / sigma) ** 2)
+    lines = len(classes) == 2
+    pose, half_width, shift = copies.pose, copies.half_width, np.asarray(copies.shift, dtype=float)
+    scale0 = pose.px_per_mm
+    for _ in range(iterations):
+        pts, nrm = _image_points(pose, model)
+        vis = _visible(pts, sfield.shape)
+        if np.count_nonzero(vis) < 20:
+            break
+        pts, nrm = pts[vis], nrm[vis]
+        delta = nrm @ shift
+        base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        jacs, offsets, weights = [], [], []
+        for sign in classes:
+            e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines)
+            for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
+                rows = np.flatnonzero(shown)
+                if len(rows) < 10:
+                    continue
+                p, n, e_row = pts[rows], nrm[rows], e[rows, None]
+                prof = _profiles(sfield, p + e_row * n, n, u)
+                a = prof[..., 0] * n[:, 0:1]
+                a += prof[..., 1] * n[:, 1:2]
+                a *= sign
+                np.maximum(a, 0.0, out=a)
+                a *= kernel
+                # samples nearer the other copy's edge (where it shows) are the other's
+                a[other_shown[rows, None] & (np.abs(e_row + u - other[rows, None]) < np.abs(u))] = 0.0
+                wsum = a.sum(axis=1)
+                ok = wsum > 1e-3
+                if np.count_nonzero(ok) < 10:
+                    continue
+                jac = np.zeros((np.count_nonzero(ok), 7))
+                jac[:, :4] = base[rows[ok]]
+                jac[:, 4] = sign if lines else 0.0
+                if second:
+                    jac[:, 5:7] = n[ok]
+                jacs.append(jac)
+                offsets.append(gain * (a @ u)[ok] / wsum[ok])
+                weights.append(wsum[ok])
+        if not jacs:
+            break
+        step = _solve_step(
+            np.vstack(jacs), np.concatenate(offsets), np.concatenate(weights), max_px=(max_half_width + 3.0 * sigma) * gain
+        )
+        if step is None:
+            break
+        pose = _updated(pose, step[:4], rho)
+        half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
+        shift = shift + step[5:7]
+        length = float(np.hypot(*shift))
+        if length > max_shift_px:
+            shift *= max_shift_px / length
+        if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
+            break
+        if float(np.abs(step).sum()) < tol_px:
+            break
+    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])))
+
+
+def _class_edge_distances(
+    layers: np.ndarray, pts: np.ndarray, nrm: np.ndarray, offsets: np.ndarray, sign: float, reach: float = 1.5
+) -> np.ndarray:
+    """Distance (px) along each normal from ``offsets`` to the nearest Canny edge pixel of
+    polarity class ``sign`` (gradient within 30° of ``sign`` times the normal); ``inf``
+    beyond ``reach`` (px)."""
+    t = np.arange(-reach, reach + 1e-9, 0.5, dtype=np.float32)
+    h, w = layers.shape[:2]
+    start = pts + offsets[:, None] * nrm
+    px, py = start[:, 0:1].astype(np.float32), start[:, 1:2].astype(np.float32)
+    nx, ny = nrm[:, 0:1].astype(np.float32), nrm[:, 1:2].astype(np.float32)
+    ix, iy = _nearest_pixels(px, nx, t, w), _nearest_pixels(py, ny, t, h)
+    off = (ix - px) * nx + (iy - py) * ny  # from the expected edge
+    prof = np.take(layers.reshape(-1, 2), iy * w + ix, axis=0)
+    proj = sign * (prof[..., 0] * nx + prof[..., 1] * ny)
+    dist = np.abs(off)
+    dist[(proj < _COS_ALIGNED) | (np.abs(off - t) > 1.0)] = np.inf
+    return dist.min(axis=1)
+
+
+def _copy_support(
+    copies: _Copies, layers: np.ndarray, model: WallModel, classes: tuple[float, ...], tol_px: float = 1.0
+) -> _Support:
+    """:class:`_Support` of ``copies``: their expected edges with a Canny edge of the same
+    class within ``tol_px`` (px)."""
+    pts, nrm = _image_points(copies.pose, model)
+    vis = _visible(pts, layers.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    delta = nrm @ np.asarray(copies.shift, dtype=float)
+    resolved = np.abs(delta) >= _RESOLVED_PX
+    counts = np.zeros(4, int)
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+        found1 = _class_edge_distances(layers, pts, nrm, e1, sign) <= tol_px
+        found2 = _class_edge_distances(layers, pts, nrm, e2, sign) <= tol_px
+        shown2 &= resolved
+        counts += [np.count_nonzero(found1 & shown1), np.count_nonzero(shown1),
+                   np.count_nonzero(found2 & shown2), np.count_nonzero(shown2)]
+    return _Support(*(int(c) for c in counts), n_points=len(pts))
+
+
+def _copy_contrast(
+    copies: _Copies, magnitude: np.ndarray, model: WallModel, classes: tuple[float, ...], min_edges: int = 10
+) -> float:
+    """Edge strength of the second copy relative to the first: ``exp`` of the sum over
+    classes of the difference between the median log gradient magnitudes (``magnitude``,
+    grey levels/px, the largest within ±0.5 px) at the two copies' shown edges, each at
+    least :data:`_RESOLVED_PX` from the other copy's. NaN when no class has ``min_edges`` of
+    each.
+
+    Lines that overlap compare one copy's outer edge on one side with the other copy's on
+    the other side: taken over the whole spiral, each class is seen on both sides.
+    """
+    pts, nrm = _image_points(copies.pose, model)
+    vis = _visible(pts, magnitude.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    delta = nrm @ np.asarray(copies.shift, dtype=float)
+    resolved = np.abs(delta) >= _RESOLVED_PX
+    t = np.array([-0.5, 0.0, 0.5])
+    log_ratio, used = 0.0, False
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+        medians = []
+        for e, shown in ((e1, shown1 & resolved), (e2, shown2 & resolved)):
+            if np.count_nonzero(shown) < min_edges:
+                break
+            mag = _profiles(magnitude, pts[shown] + e[shown, None] * nrm[shown], nrm[shown], t).max(axis=1)
+            medians.append(float(np.median(np.log(np.maximum(mag, 1e-3)))))
+        if len(medians) == 2:
+            log_ratio += medians[1] - medians[0]
+            used = True
+    return float(math.exp(log_ratio)) if used else float("nan")
+
+
+def _shift_surface(
+    pose: CameraPose,
+    sfield: np.ndarray,
+    model: WallModel,
+    radius_px: float,
+    mask_half_width: float | None = None,
+    n_bins: int = 72,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How well the walls at ``pose`` moved by each shift ``v`` (px, ``|v_x|, |v_y| <=
+    radius_px``) lie on edges: the polarity-aware evidence (both classes, at ``±h``) summed
+    over the walls, for the best line half width ``h`` of :data:`_SURFACE_HALF_WIDTHS`.
+
+    The signed field is sampled once along each wall normal and the samples summed over
+    wall points of about the same normal direction (``n_bins`` bins): a shift ``v`` then
+    moves every edge of a bin by the same ``n·v``, one lookup per bin. With
+    ``mask_half_width`` (px), the edges at ``±mask_half_width`` (within 1.5 px) are left
+    out: the surface then shows where else the walls have edges, e.g. their second copy.
+
+    Returns
+    -------
+    surface : ndarray, shape (m, m)
+        Evidence (arbitrary units), row index along y, column along x.
+    half_width : ndarray, shape (m, m)
+        The half width (px) that gave it.
+    grid : ndarray, shape (m,)
+        The shifts (px) of the rows and columns, in steps of 1 px (more above 20 px of
+        radius, so that the grid has at most 41 steps a side).
+    """
+    pts, nrm = _image_points(pose, model)
+    vis = _visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    h_max = max(abs(h) for h in _SURFACE_HALF_WIDTHS)
+    reach = radius_px * math.sqrt(2.0) + h_max + 1.0
+    t = np.arange(-reach, reach + 1e-9, 0.5)
+    prof = _profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    out_of, into = np.maximum(proj, 0.0), np.maximum(-proj, 0.0)
+    if mask_half_width is not None:
+        out_of[:, np.abs(t - mask_half_width) <= 1.5] = 0.0
+        into[:, np.abs(t + mask_half_width) <= 1.5] = 0.0
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
+    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
+    sums = np.zeros((2, n_bins, len(t)))
+    np.add.at(sums[0], bins, out_of)
+    np.add.at(sums[1], bins, into)
+    centre = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
+    step = max(1.0, radius_px / 20.0)
+    grid = np.arange(-math.floor(radius_px / step), math.floor(radius_px / step) + 1) * step
+    vx, vy = np.meshgrid(grid, grid)
+    along = np.cos(centre)[:, None] * vx.ravel()[None, :] + np.sin(centre)[:, None] * vy.ravel()[None, :]
+    best = np.full(vx.size, -np.inf)
+    best_h = np.zeros(vx.size)
+    rows = np.arange(n_bins)[:, None]
+    for h in _SURFACE_HALF_WIDTHS:
+        total = np.zeros(vx.size)
+        for table, offset in ((sums[0], h), (sums[1], -h)):
+            idx = np.clip((along + offset + reach) * 2.0, 0.0, len(t) - 1.001)
+            i0 = idx.astype(np.intp)
+            frac = idx - i0
+            total += (table[rows, i0] * (1.0 - frac) + table[rows, i0 + 1] * frac).sum(axis=0)
+        better = total > best
+        best[better], best_h[better] = total[better], h
+    return best.reshape(vx.shape), best_h.reshape(vx.shape), grid
+
+
+def _surface_peaks(
+    surface: np.ndarray, half_width: np.ndarray, grid: np.ndarray, n: int, min_shift_px: float = 0.0
+) -> list[tuple[np.ndarray, float, float]]:
+    """Up to ``n`` local maxima of a :func:`_shift_surface`, best first, at least
+    ``min_shift_px`` (px) from zero shift: (shift (px, x and y), value relative to the
+    surface's maximum, half width (px))."""
+    top = float(surface.max())
+    if not top > 0:
+        return []
+    dil = cv2.dilate(surface.astype(np.float32), np.ones((3, 3), np.uint8))
+    rows, cols = np.nonzero(surface >= dil)
+    out = []
+    for r, c in sorted(zip(rows.tolist(), cols.tolist()), key=lambda rc: -surface[rc]):
+        v = np.array([grid[c], grid[r]])
+        if math.hypot(*v) >= min_shift_px:
+            out.append((v, float(surface[r, c]) / top, float(half_width[r, c])))
+            if len(out) == n:
+                break
+    return out
+
+
+def _copy_starts(
+    pose: CameraPose, half_width: float, sfield: np.ndarray, model: WallModel, cfg: RegistrationConfig
+) -> list[_Copies]:
+    """Starting points for :func:`_refine_copies` from a single-copy fit ``pose`` (px), which
+    may lie on either copy or between them.
+
+    Copies further apart than their edges' width: the strongest peak of
+    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
+    the surface's two best peaks propose the other copy. Copies closer than that (one
+    thicker wall): ``pose`` with a second copy 0.12 mm away (2–4 px) in three directions
+    60° apart; the refinement turns and stretches the shift from there.
+    """
+    radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
+    surface, widths, grid = _shift_surface(pose, sfield, model, radius)
+    starts = []
+    peaks = _surface_peaks(surface, widths, grid, 1)
+    if peaks:
+        v, _, h = peaks[0]
+        one, one_hw = pose, half_width
+        if math.hypot(*v) >= 1.0:
+            one, one_hw = _refine_signed(
+                _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 20, max_half_width=cfg.max_line_half_width_px
+            )
+        masked, masked_hw, _ = _shift_surface(one, sfield, model, radius, mask_half_width=one_hw)
+        for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 2, min_shift_px=2.0):
+            starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
+    length = float(np.clip(0.12 * pose.px_per_mm, 2.0, 4.0))
+    for angle in (0.0, math.pi / 3.0, 2.0 * math.pi / 3.0):
+        starts.append(_Copies(pose, 0.0, (length * math.cos(angle), length * math.sin(angle))))
+    return starts
+
+
+def _doubled_walls(
+    edges: _Edges,
+    layers: np.ndarray,
+    pose: CameraPose,
+    half_width: float,
+    model: WallModel,
+    cfg: RegistrationConfig,
+    b_per_rad: float,
+) -> tuple[_Copies, float] | None:
+    """Doubled walls near a single-copy fit, or None when the walls are single.
+
+    Every start of :func:`_copy_starts` is refined on walls 3 px apart; of those whose
+    second copy is real (:attr:`_Support.second_is_real`) the best supported
+    (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
+    the spiral's valley when that fits better (:func:`_valley_scan`), and its copies named
+    so that the first is the one with the stronger edges. Returns the copies and the second
+    copy's relative contrast (:func:`_copy_contrast`).
+    """
+    classes = _wall_classes(pose, edges.signed, model.subsample(3.0 / pose.px_per_mm))
+    coarse = model.subsample(3.0 / pose.px_per_mm)
+    fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+    limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=_MAX_PARALLAX_MM * pose.px_per_mm)
+    best: tuple[float, _Copies] | None = None
+    for start in _copy_starts(pose, half_width, edges.signed, fine, cfg):
+        copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=12, **limits)
+        support = _copy_support(copies, layers, coarse, classes)
+        if support.second_is_real and (best is None or support.score > best[0]):
+            best = (support.score, copies)
+    if best is None:
+        return None
+    copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=20, **limits)
+    delta = _valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
+    if delta != 0.0:
+        turned = _Copies(_valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift)
+        turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=20, **limits)
+        if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
+            copies = turned
+    support = _copy_support(copies, layers, fine, classes)
+    if not (support.second_is_real and math.hypot(*copies.shift) >= _RESOLVED_PX):
+        return None
+    contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
+    if contrast > 1.0:
+        copies, contrast = copies.swapped(), 1.0 / contrast
+    return copies, contrast
 
 
 # --------------------------------------------------------------------------- public entry points
@@ -1509,13 +2092,22 @@ _EXCELLENT = 0.85
 
 
 def _best_pose(
-    edges: _Edges, model: WallModel, cfg: RegistrationConfig, scale_range: tuple[float, float]
+    edges: _Edges,
+    model: WallModel,
+    cfg: RegistrationConfig,
+    scale_range: tuple[float, float],
+    phantom: Phantom = DEFAULT_PHANTOM,
 ) -> tuple[CameraPose, float, WallFit] | None:
     """Global search over ``scale_range`` (px/mm), refinement of the best proposals, and the
     best-supported result.
 
+    Each proposal refined at full resolution is also refined from the best turn along the
+    spiral's self-similarity valley (:func:`_valley_scan`), and the better supported of the
+    two kept.
+
     Returns the pose, the wall lines' half width (px) and the fit, or None.
     """
+    b_per_rad = math.degrees(phantom.b_per_deg)  # b of the exponential branch, 1/rad
     proposals = _coarse_search(edges, model, cfg, scale_range)
     lo, hi = scale_range
     layers = _edge_layers(edges.edge_map)
@@ -1545,6 +2137,12 @@ def _best_pose(
             refined.append(prop)
             pose, half_width = _refine_fine(prop.pose, edges, model, cfg)
             result = fit(pose, cfg.model_spacing_px, half_width)
+            delta = _valley_scan(pose, edges.pyramid, model, b_per_rad)
+            if delta != 0.0:
+                turned, turned_hw = _refine_fine(_valley_pose(pose, delta, b_per_rad), edges, model, cfg)
+                turned_fit = fit(turned, cfg.model_spacing_px, turned_hw)
+                if turned_fit.matched_length_mm > result.matched_length_mm:
+                    pose, half_width, result = turned, turned_hw, turned_fit
             if best is None or result.matched_length_mm > best[2].matched_length_mm:
                 best = (pose, half_width, result)
             if result.matched_length_mm >= excellent:
@@ -1597,7 +2195,7 @@ def register(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
         )
     model = wall_model(phantom, spacing_mm=0.02)
-    best = _best_pose(edges, model, cfg, scale_range)
+    best = _best_pose(edges, model, cfg, scale_range, phantom)
     if best is None:
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
