@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -427,3 +428,32 @@ def test_wall_model_normals_point_out_of_the_channel():
     lengths = np.bincount(model.group) * model.spacing_mm
     assert lengths[0] == pytest.approx(10.0, abs=0.2)  # the two 5 mm entry walls
     assert model.length_mm == pytest.approx(74.2, abs=0.5)
+
+
+def test_doubled_walls_register_on_the_stronger_copy_and_say_so():
+    """12 views whose walls show twice (second copy 0.15–0.45 mm away in a random direction, at
+    30–90 % of the first's contrast; all wall styles, both mirrors, mild nuisances, three frames
+    each): the pose is that of the stronger copy, without a scale bias, and the registration says
+    the walls looked doubled and how far apart. Measured (seeds 700–711): centre error median
+    0.05 px, max 0.32 px; scale error median 0.15 %, max 0.22 %; parallax within 0.02 mm; every
+    one flagged. Single walls (the clean views) are never flagged."""
+    for seed in range(700, 712):
+        rng = np.random.default_rng(seed)
+        pose = random_pose(rng, 640, 480)
+        appearance = random_appearance(rng)
+        parallax_mm, contrast = float(rng.uniform(0.15, 0.45)), float(rng.uniform(0.3, 0.9))
+        nuisance = replace(random_nuisance(rng, 0.3), doubled_wall_mm=parallax_mm, doubled_wall_contrast=contrast)
+        scene = Scene(pose, 640, 480, appearance, nuisance, rng=rng)
+        frames = [to_gray(scene.render(pose_at_depth(float(d)))) for d in rng.uniform(-1.0, 15.0, 3)]
+        reg = register(frames)
+        centre, scale, _ = _errors(reg.pose, pose)
+        assert reg.pose.mirrored == pose.mirrored
+        assert centre <= 0.65 and scale <= 0.45, (seed, centre, scale)
+        assert reg.walls_doubled, seed
+        shift = np.asarray(reg.parallax_px) - scene.wall_parallax_px
+        assert np.hypot(*shift) / pose.px_per_mm <= 0.03, (seed, reg.parallax_px, scene.wall_parallax_px)
+        assert reg.to_dict()["walls_doubled"] is True
+
+
+def test_single_walls_are_not_taken_for_doubled(clean_runs):
+    assert not any(reg.walls_doubled for _, reg, _, _ in clean_runs)

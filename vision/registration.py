@@ -1565,6 +1565,9 @@ def wall_fit(
 
 # Largest turn (rad) about the spiral centre that :func:`_valley_scan` tries either way.
 _VALLEY_MAX_RAD = math.radians(30.0)
+# Least relative gain of the valley score for which :func:`_valley_scan` proposes a turn (a
+# wrong turn of the entry loses a quarter or more of it; noise changes it by about 1 %).
+_VALLEY_MIN_GAIN = 0.03
 
 
 def _valley_pose(pose: CameraPose, delta: float, b_per_rad: float) -> CameraPose:
@@ -1599,9 +1602,10 @@ def _valley_scan(
     apart, and a fit dominated by the rest of the spiral can settle anywhere on it (the
     entry's walls then lie on the array or on nothing). Those walls are scored by their
     orientation agreement with the doubled-angle field on the pyramid level where the phantom
-    appears at 8–16 px/mm, for turns up to ±30° in steps that move the farthest of them by
-    half a pixel of that level. With ``parallax_px`` (px, doubled walls) the walls' second
-    copy, shifted by it, is scored too.
+    appears at 8–16 px/mm (points 1.5 px apart), for turns up to ±30° in steps that move the
+    farthest of them by a pixel of that level; a turn is proposed when it scores at least
+    :data:`_VALLEY_MIN_GAIN` more than ``pose``. With ``parallax_px`` (px, doubled walls) the
+    walls' second copy, shifted by it, is scored too.
     """
     level = int(np.clip(math.floor(math.log2(max(pose.px_per_mm, 1e-6) / 8.0)), 0, len(pyramid) - 1))
     fld = pyramid[level]
@@ -1609,9 +1613,9 @@ def _valley_scan(
     lp = _scaled_pose(pose, f)
     keep = model.group <= 1
     part = WallModel(model.points[keep], model.normals[keep], model.spacing_mm, model.group[keep])
-    part = part.subsample(1.0 / lp.px_per_mm)
+    part = part.subsample(1.5 / lp.px_per_mm)
     r_max = float(np.max(np.hypot(part.points[:, 0], part.points[:, 1]))) * lp.px_per_mm
-    n_side = int(math.ceil(_VALLEY_MAX_RAD * r_max / 0.5))
+    n_side = int(math.ceil(_VALLEY_MAX_RAD * r_max))
     deltas = np.linspace(-_VALLEY_MAX_RAD, _VALLEY_MAX_RAD, 2 * n_side + 1)
     sign = 1.0 if lp.mirrored else -1.0
     # the walls at every turn, (len(deltas), n): raising rotation_rad by delta turns the
@@ -1634,7 +1638,7 @@ def _valley_scan(
         agree = prof[..., 0] * c2 + prof[..., 1] * s2
         score += np.maximum(agree, 0.0).sum(axis=1)
     best = int(np.argmax(score))
-    return float(deltas[best]) if score[best] > score[n_side] else 0.0
+    return float(deltas[best]) if score[best] > (1.0 + _VALLEY_MIN_GAIN) * score[n_side] else 0.0
 
 
 # --------------------------------------------------------------------------- doubled walls
@@ -1655,7 +1659,7 @@ _MIN_SECOND_MATCHED = 0.30
 # Largest parallax (mm) looked for.
 _MAX_PARALLAX_MM = 0.55
 # Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
-_SURFACE_HALF_WIDTHS = (-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0)
+_SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 
 
 @dataclass(frozen=True)
@@ -1692,6 +1696,11 @@ class _Support:
         """Matched edges less a quarter of those expected (about the share a random shift
         matches), so that a shift onto stray edges does not pay."""
         return self.matched1 + self.matched2 - 0.25 * (self.shown1 + self.shown2)
+
+    @property
+    def first_rate(self) -> float:
+        """Fraction of the first copy's shown edges found."""
+        return self.matched1 / max(self.shown1, 1)
 
     @property
     def second_is_real(self) -> bool:
@@ -1762,6 +1771,45 @@ def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_
     return (1.0,) if out_of > into else (-1.0,)
 
 
+def _copy_edges(
+    delta: np.ndarray, half_width: float, classes: tuple[float, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every shown edge of doubled walls (:func:`_copy_offsets`), one row each.
+
+    Parameters
+    ----------
+    delta : ndarray, shape (n,)
+        Offset (px) of the second copy along each wall normal.
+    half_width : float
+        Half width (px) of the wall lines.
+    classes : tuple of float
+        Polarity classes shown (:func:`_wall_classes`).
+
+    Returns
+    -------
+    point : ndarray of int
+        The wall point of each edge.
+    sign : ndarray
+        Its class (+1 or -1).
+    second : ndarray of bool
+        Whether it is the second copy's.
+    expected : ndarray
+        Its expected offset (px) along the normal.
+    other : ndarray
+        The other copy's edge of the class (px along the normal), NaN where that one does
+        not show.
+    """
+    lines = len(classes) == 2
+    parts = []
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines)
+        for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
+            rows = np.flatnonzero(shown)
+            parts.append((rows, np.full(len(rows), sign), np.full(len(rows), second), e[rows],
+                          np.where(other_shown[rows], other[rows], np.nan)))
+    return tuple(np.concatenate([part[k] for part in parts]) for k in range(5))  # type: ignore[return-value]
+
+
 def _refine_copies(
     copies: _Copies,
     sfield: np.ndarray,
@@ -1772,7 +1820,7 @@ def _refine_copies(
     iterations: int,
     max_half_width: float,
     max_shift_px: float,
-    tol_px: float = 0.01,
+    tol_px: float = 0.05,
 ) -> _Copies:
     """Polarity-aware refinement (as :func:`_refine_signed`) of doubled walls: pose, line half
     width and the second copy's shift.
@@ -1795,41 +1843,27 @@ def _refine_copies(
         if np.count_nonzero(vis) < 20:
             break
         pts, nrm = pts[vis], nrm[vis]
-        delta = nrm @ shift
         base, rho = _similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        jacs, offsets, weights = [], [], []
-        for sign in classes:
-            e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines)
-            for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
-                rows = np.flatnonzero(shown)
-                if len(rows) < 10:
-                    continue
-                p, n, e_row = pts[rows], nrm[rows], e[rows, None]
-                prof = _profiles(sfield, p + e_row * n, n, u)
-                a = prof[..., 0] * n[:, 0:1]
-                a += prof[..., 1] * n[:, 1:2]
-                a *= sign
-                np.maximum(a, 0.0, out=a)
-                a *= kernel
-                # samples nearer the other copy's edge (where it shows) are the other's
-                a[other_shown[rows, None] & (np.abs(e_row + u - other[rows, None]) < np.abs(u))] = 0.0
-                wsum = a.sum(axis=1)
-                ok = wsum > 1e-3
-                if np.count_nonzero(ok) < 10:
-                    continue
-                jac = np.zeros((np.count_nonzero(ok), 7))
-                jac[:, :4] = base[rows[ok]]
-                jac[:, 4] = sign if lines else 0.0
-                if second:
-                    jac[:, 5:7] = n[ok]
-                jacs.append(jac)
-                offsets.append(gain * (a @ u)[ok] / wsum[ok])
-                weights.append(wsum[ok])
-        if not jacs:
+        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes)
+        n = nrm[point]
+        prof = _profiles(sfield, pts[point] + expected[:, None] * n, n, u)
+        a = prof[..., 0] * n[:, 0:1]
+        a += prof[..., 1] * n[:, 1:2]
+        a *= sign[:, None]
+        np.maximum(a, 0.0, out=a)
+        a *= kernel
+        # samples nearer the other copy's edge of the class (where it shows) are the other's
+        with np.errstate(invalid="ignore"):
+            a[np.abs(expected[:, None] + u - other[:, None]) < np.abs(u)] = 0.0
+        wsum = a.sum(axis=1)
+        ok = wsum > 1e-3
+        if np.count_nonzero(ok) < 20:
             break
-        step = _solve_step(
-            np.vstack(jacs), np.concatenate(offsets), np.concatenate(weights), max_px=(max_half_width + 3.0 * sigma) * gain
-        )
+        jac = np.zeros((np.count_nonzero(ok), 7))
+        jac[:, :4] = base[point[ok]]
+        jac[:, 4] = sign[ok] if lines else 0.0
+        jac[:, 5:7] = n[ok] * second[ok, None]
+        step = _solve_step(jac, gain * (a @ u)[ok] / wsum[ok], wsum[ok], max_px=(max_half_width + 3.0 * sigma) * gain)
         if step is None:
             break
         pose = _updated(pose, step[:4], rho)
@@ -1919,17 +1953,32 @@ def _copy_contrast(
     return float(math.exp(log_ratio)) if used else float("nan")
 
 
+def _bin_sums(rows: np.ndarray, bins: np.ndarray, n_bins: int) -> np.ndarray:
+    """Sum of the ``rows`` (shape (n, m)) that fall in each of ``n_bins`` bins (``bins``,
+    shape (n,)); shape (n_bins, m)."""
+    order = np.argsort(bins, kind="stable")
+    counts = np.bincount(bins, minlength=n_bins)
+    out = np.zeros((n_bins, rows.shape[1]))
+    filled = counts > 0
+    if filled.any():
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])[filled]
+        out[filled] = np.add.reduceat(rows[order], starts, axis=0)
+    return out
+
+
 def _shift_surface(
     pose: CameraPose,
     sfield: np.ndarray,
     model: WallModel,
     radius_px: float,
+    classes: tuple[float, ...],
     mask_half_width: float | None = None,
-    n_bins: int = 72,
+    n_bins: int = 48,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How well the walls at ``pose`` moved by each shift ``v`` (px, ``|v_x|, |v_y| <=
-    radius_px``) lie on edges: the polarity-aware evidence (both classes, at ``±h``) summed
-    over the walls, for the best line half width ``h`` of :data:`_SURFACE_HALF_WIDTHS`.
+    radius_px``) lie on edges: the polarity-aware evidence of ``classes`` (at ``±h``)
+    summed over the walls, for the best line half width ``h`` of
+    :data:`_SURFACE_HALF_WIDTHS` (lines) or ``h = 0`` (region boundaries, one class).
 
     The signed field is sampled once along each wall normal and the samples summed over
     wall points of about the same normal direction (``n_bins`` bins): a shift ``v`` then
@@ -1944,35 +1993,35 @@ def _shift_surface(
     half_width : ndarray, shape (m, m)
         The half width (px) that gave it.
     grid : ndarray, shape (m,)
-        The shifts (px) of the rows and columns, in steps of 1 px (more above 20 px of
-        radius, so that the grid has at most 41 steps a side).
+        The shifts (px) of the rows and columns, in steps of 1 px (more above 12 px of
+        radius, so that the grid has at most 25 steps a side).
     """
     pts, nrm = _image_points(pose, model)
     vis = _visible(pts, sfield.shape)
     pts, nrm = pts[vis], nrm[vis]
-    h_max = max(abs(h) for h in _SURFACE_HALF_WIDTHS)
+    half_widths = _SURFACE_HALF_WIDTHS if len(classes) == 2 else (0.0,)
+    h_max = max(abs(h) for h in half_widths)
     reach = radius_px * math.sqrt(2.0) + h_max + 1.0
     t = np.arange(-reach, reach + 1e-9, 0.5)
     prof = _profiles(sfield, pts, nrm, t)
     proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
-    out_of, into = np.maximum(proj, 0.0), np.maximum(-proj, 0.0)
+    out_of = np.maximum(proj, 0.0) if 1.0 in classes else np.zeros_like(proj)
+    into = np.maximum(-proj, 0.0) if -1.0 in classes else np.zeros_like(proj)
     if mask_half_width is not None:
         out_of[:, np.abs(t - mask_half_width) <= 1.5] = 0.0
         into[:, np.abs(t + mask_half_width) <= 1.5] = 0.0
     angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
     bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
-    sums = np.zeros((2, n_bins, len(t)))
-    np.add.at(sums[0], bins, out_of)
-    np.add.at(sums[1], bins, into)
+    sums = np.stack([_bin_sums(out_of, bins, n_bins), _bin_sums(into, bins, n_bins)])
     centre = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
-    step = max(1.0, radius_px / 20.0)
+    step = max(1.0, radius_px / 12.0)
     grid = np.arange(-math.floor(radius_px / step), math.floor(radius_px / step) + 1) * step
     vx, vy = np.meshgrid(grid, grid)
     along = np.cos(centre)[:, None] * vx.ravel()[None, :] + np.sin(centre)[:, None] * vy.ravel()[None, :]
     best = np.full(vx.size, -np.inf)
     best_h = np.zeros(vx.size)
     rows = np.arange(n_bins)[:, None]
-    for h in _SURFACE_HALF_WIDTHS:
+    for h in half_widths:
         total = np.zeros(vx.size)
         for table, offset in ((sums[0], h), (sums[1], -h)):
             idx = np.clip((along + offset + reach) * 2.0, 0.0, len(t) - 1.001)
@@ -1993,8 +2042,8 @@ def _surface_peaks(
     top = float(surface.max())
     if not top > 0:
         return []
-    dil = cv2.dilate(surface.astype(np.float32), np.ones((3, 3), np.uint8))
-    rows, cols = np.nonzero(surface >= dil)
+    values = surface.astype(np.float32)  # compared in the dilation's precision
+    rows, cols = np.nonzero(values >= cv2.dilate(values, np.ones((3, 3), np.uint8)))
     out = []
     for r, c in sorted(zip(rows.tolist(), cols.tolist()), key=lambda rc: -surface[rc]):
         v = np.array([grid[c], grid[r]])
@@ -2006,19 +2055,28 @@ def _surface_peaks(
 
 
 def _copy_starts(
-    pose: CameraPose, half_width: float, sfield: np.ndarray, model: WallModel, cfg: RegistrationConfig
+    pose: CameraPose,
+    half_width: float,
+    sfield: np.ndarray,
+    model: WallModel,
+    classes: tuple[float, ...],
+    cfg: RegistrationConfig,
 ) -> list[_Copies]:
     """Starting points for :func:`_refine_copies` from a single-copy fit ``pose`` (px), which
     may lie on either copy or between them.
 
     Copies further apart than their edges' width: the strongest peak of
     :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
-    the surface's two best peaks propose the other copy. Copies closer than that (one
-    thicker wall): ``pose`` with a second copy 0.12 mm away (2–4 px) in three directions
-    60° apart; the refinement turns and stretches the shift from there.
+    the surface's best peak (two best, for region boundaries) proposes the other copy.
+    Lines closer than that (one thicker line): ``pose`` with a second copy 0.12 mm away
+    (2–4 px) in three directions 60° apart; the refinement turns and stretches the shift
+    from there. (Region boundaries that close merge into one edge, which shows no second
+    copy to fit.)
     """
+    lines = len(classes) == 2
     radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
-    surface, widths, grid = _shift_surface(pose, sfield, model, radius)
+    sparse = model.subsample(2.0 / pose.px_per_mm)  # enough wall to place the walls to a pixel
+    surface, widths, grid = _shift_surface(pose, sfield, sparse, radius, classes)
     starts = []
     peaks = _surface_peaks(surface, widths, grid, 1)
     if peaks:
@@ -2026,14 +2084,15 @@ def _copy_starts(
         one, one_hw = pose, half_width
         if math.hypot(*v) >= 1.0:
             one, one_hw = _refine_signed(
-                _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 20, max_half_width=cfg.max_line_half_width_px
+                _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
             )
-        masked, masked_hw, _ = _shift_surface(one, sfield, model, radius, mask_half_width=one_hw)
-        for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 2, min_shift_px=2.0):
+        masked, masked_hw, _ = _shift_surface(one, sfield, sparse, radius, classes, mask_half_width=one_hw)
+        for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 1 if lines else 2, min_shift_px=2.0):
             starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
-    length = float(np.clip(0.12 * pose.px_per_mm, 2.0, 4.0))
-    for angle in (0.0, math.pi / 3.0, 2.0 * math.pi / 3.0):
-        starts.append(_Copies(pose, 0.0, (length * math.cos(angle), length * math.sin(angle))))
+    if lines:
+        length = float(np.clip(0.12 * pose.px_per_mm, 2.0, 4.0))
+        for angle in (0.0, math.pi / 3.0, 2.0 * math.pi / 3.0):
+            starts.append(_Copies(pose, 0.0, (length * math.cos(angle), length * math.sin(angle))))
     return starts
 
 
@@ -2048,30 +2107,34 @@ def _doubled_walls(
 ) -> tuple[_Copies, float] | None:
     """Doubled walls near a single-copy fit, or None when the walls are single.
 
-    Every start of :func:`_copy_starts` is refined on walls 3 px apart; of those whose
-    second copy is real (:attr:`_Support.second_is_real`) the best supported
+    Every start of :func:`_copy_starts` is refined on walls 4 px apart. Of those whose
+    second copy is real (:attr:`_Support.second_is_real`) and whose first copy lies on edges
+    nearly as often as the single copy did (:attr:`_Support.first_rate`, at least 85 % of
+    it: a shift onto another turn's walls can pass the first test), the best supported
     (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
     the spiral's valley when that fits better (:func:`_valley_scan`), and its copies named
     so that the first is the one with the stronger edges. Returns the copies and the second
     copy's relative contrast (:func:`_copy_contrast`).
     """
-    classes = _wall_classes(pose, edges.signed, model.subsample(3.0 / pose.px_per_mm))
-    coarse = model.subsample(3.0 / pose.px_per_mm)
+    coarse = model.subsample(4.0 / pose.px_per_mm)
+    classes = _wall_classes(pose, edges.signed, coarse)
     fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=_MAX_PARALLAX_MM * pose.px_per_mm)
+    single = _copy_support(_Copies(pose, half_width, (0.0, 0.0)), layers, coarse, classes)
     best: tuple[float, _Copies] | None = None
-    for start in _copy_starts(pose, half_width, edges.signed, fine, cfg):
-        copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=12, **limits)
+    for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg):
+        copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
         support = _copy_support(copies, layers, coarse, classes)
-        if support.second_is_real and (best is None or support.score > best[0]):
+        plausible = support.second_is_real and support.first_rate >= 0.85 * single.first_rate
+        if plausible and (best is None or support.score > best[0]):
             best = (support.score, copies)
     if best is None:
         return None
-    copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=20, **limits)
+    copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = _valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
         turned = _Copies(_valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift)
-        turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=20, **limits)
+        turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
         if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
             copies = turned
     support = _copy_support(copies, layers, fine, classes)
@@ -2093,10 +2156,11 @@ _EXCELLENT = 0.85
 
 def _best_pose(
     edges: _Edges,
+    layers: np.ndarray,
     model: WallModel,
     cfg: RegistrationConfig,
     scale_range: tuple[float, float],
-    phantom: Phantom = DEFAULT_PHANTOM,
+    b_per_rad: float,
 ) -> tuple[CameraPose, float, WallFit] | None:
     """Global search over ``scale_range`` (px/mm), refinement of the best proposals, and the
     best-supported result.
@@ -2105,12 +2169,12 @@ def _best_pose(
     spiral's self-similarity valley (:func:`_valley_scan`), and the better supported of the
     two kept.
 
-    Returns the pose, the wall lines' half width (px) and the fit, or None.
+    ``layers`` is :func:`_edge_layers` of the edges and ``b_per_rad`` the exponential
+    branch's ``b`` (1/rad). Returns the pose, the wall lines' half width (px) and the fit, or
+    None.
     """
-    b_per_rad = math.degrees(phantom.b_per_deg)  # b of the exponential branch, 1/rad
     proposals = _coarse_search(edges, model, cfg, scale_range)
     lo, hi = scale_range
-    layers = _edge_layers(edges.edge_map)
 
     def fit(pose: CameraPose, spacing_px: float, half_width: float | None) -> WallFit:
         sub = model.subsample(spacing_px / pose.px_per_mm)
@@ -2195,11 +2259,20 @@ def register(
             f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
         )
     model = wall_model(phantom, spacing_mm=0.02)
-    best = _best_pose(edges, model, cfg, scale_range, phantom)
+    layers = _edge_layers(edges.edge_map)
+    b_per_rad = math.degrees(phantom.b_per_deg)  # b of the exponential branch, 1/rad
+    best = _best_pose(edges, layers, model, cfg, scale_range, b_per_rad)
     if best is None:
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
     pose, half_width, fit = best
+    doubled = _doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad)
+    shift, contrast = (0.0, 0.0), float("nan")
+    if doubled is not None:
+        copies, contrast = doubled
+        pose, half_width, shift = copies.pose, copies.half_width, copies.shift
+        sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+        fit = _wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, np.asarray(shift))
     reasons = []
     if fit.visible_fraction < cfg.min_visible_fraction:
         reasons.append(f"only {fit.visible_fraction:.0%} of its walls would be in view")
@@ -2221,6 +2294,9 @@ def register(
         line_half_width_px=half_width,
         edge_sigma_px=sigma,
         image_size=(w, h),
+        walls_doubled=doubled is not None,
+        parallax_px=shift,
+        second_copy_contrast=contrast,
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), _check_walls(pose, model)
