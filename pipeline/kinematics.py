@@ -36,7 +36,8 @@ class KinematicsConfig:
         Fewest measured frames with a depth for the check to run.
     min_share : float
         Least share (dimensionless) of the measured frames the fitted line must hold within the
-        tolerance; a video whose frames agree less is reported unchecked, not marked.
+        tolerance. A video whose frames agree less has at least half of them misread and no way
+        to tell which: all its measured frames are marked.
     pairs : int
         Pairs of frames tried as the consensus line.
     """
@@ -186,11 +187,14 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
     fit = fit_insertion(t, d, cfg)
     if fit is None:
         return [], ""
-    if fit.share < cfg.min_share:
-        return [], (f"kinematics not checked: only {100 * fit.share:.0f} % of the measured frames lie on one "
-                    "constant-speed insertion")
     r = d - insertion_depth(fit, t)
-    off = np.flatnonzero(np.abs(r) > fit.tol_mm)
+    if fit.share < cfg.min_share:  # no insertion to check against: every frame is in doubt
+        off = np.arange(len(ok))
+        why = (f"the measured depths follow no constant-speed insertion (at most {100 * fit.share:.0f} % "
+               f"of the {len(ok)} measured frames lie on one)")
+    else:
+        off = np.flatnonzero(np.abs(r) > fit.tol_mm)
+        why = ""
     runs = []
     for a, b in _runs(off):
         seg = r[a:b + 1]
@@ -199,10 +203,13 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
                          off_mm=round(worst, 3)))
         for j in range(a, b + 1):
             rows[ok[j]].update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
-                               reason=(f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed "
+                               reason=("kinematics: " + why if why else
+                                       f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed "
                                        f"insertion ({fit.speed_mm_s:.3g} mm/s)"))
     note = ""
-    if runs:
+    if why:
+        note = f"{len(off)} frame(s) marked not ok: {why}"
+    elif runs:
         spans = ", ".join(f"{u['first']}–{u['last']}" if u["last"] > u["first"] else f"{u['first']}" for u in runs)
         note = (f"{len(off)} frame(s) marked not ok off the constant-speed insertion ({fit.speed_mm_s:.3g} mm/s, "
                 f"tolerance {fit.tol_mm:.2f} mm): frames {spans}")

@@ -68,14 +68,17 @@ def test_runs_of_misread_frames_are_marked_and_nothing_else(seed: int) -> None:
     assert f"{bad.sum()} frame(s) marked not ok" in note
 
 
-def test_disagreeing_frames_are_reported_unchecked_not_marked() -> None:
-    """When no line holds half the frames (depth all over the place), nothing is marked and the
-    note says the check did not run; too few frames: silent."""
+def test_frames_that_follow_no_insertion_are_all_marked() -> None:
+    """When no line holds half the frames (depth all over the place), at least half are misread
+    and nothing says which: every measured frame is marked, with the reason; too few frames:
+    silent."""
     rng = np.random.default_rng(7)
     t = np.arange(40) / 10.0
     rows = _rows(t, rng.uniform(0, 20, 40))
     runs, note = flag_kinematics(rows)
-    assert runs == [] and note.startswith("kinematics not checked") and all(r["ok"] for r in rows)
+    assert not any(r["ok"] for r in rows) and sum(u["frames"] for u in runs) == 40
+    assert note.startswith("40 frame(s) marked not ok: the measured depths follow no constant-speed insertion")
+    assert rows[0]["reason"].startswith("kinematics: the measured depths follow no")
     rows = _rows(t[:5], np.array([1.0, 9.0, 1.2, 1.3, 1.4]))
     assert flag_kinematics(rows) == ([], "") and all(r["ok"] for r in rows)
 

@@ -218,6 +218,13 @@ class MeasureConfig:
         not end the contact run (a real departure from the wall widens steadily).
     contact_excess_mm : float
         Excess gap (mm) over ``contact_tol_mm`` beyond which an excursion always ends the run.
+    contact_bias_mm : float
+        Largest allowance (mm) for a bias of the measured gap. Blur, compression and doubled
+        wall lines can make a gap read some hundredths of a millimetre wide everywhere; where
+        the median measured gap of the stretch from the tip to the first gap above
+        ``contact_tol_mm + contact_excess_mm`` exceeds ``contact_tol_mm / 2``, the excess (up
+        to this much) is taken as bias and added to the tolerance. (With gaps read without
+        bias, touching stretches have a median gap well under half the tolerance.)
     station_step_px : float
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float
@@ -337,6 +344,7 @@ class MeasureConfig:
     contact_tol_mm: float = 0.05
     contact_persist_mm: float = 0.5
     contact_excess_mm: float = 0.1
+    contact_bias_mm: float = 0.05
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
     min_step_mm: float = 0.03
@@ -874,6 +882,14 @@ def _erode(mask: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
+def _dark_runs(dark: np.ndarray) -> np.ndarray:
+    """Per row of ``dark`` (rows, n), the length of the run of True ending at each entry (0 where
+    False)."""
+    at = np.arange(dark.shape[1])[None, :]
+    last_false = np.maximum.accumulate(np.where(dark, -1, at), axis=1)
+    return np.where(dark, at - last_false, 0)
+
+
 def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
                 step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
     """Where the array ends when an air bubble sits at or ahead of its tip.
@@ -933,15 +949,25 @@ def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: n
         track = np.median(seed[before[-int(np.ceil(cfg.bubble_track_mm / step_mm)):]])
         if not (y[k] <= track < y[k] + h[k]):  # beside the array's path, not on it
             continue
-        rim = 0  # the rim beyond the interior, dark at the path's offset
-        row = int(round(track))
-        while x[k] + w[k] + rim < n and cover[row, x[k] + w[k] + rim] >= cfg.dark_level:
-            rim += 1
-        if wid_mm[k] < cfg.bubble_wider * diameter_mm and rim * step_mm > cfg.bubble_rim_mm:
+        reach = max(int(round(0.25 * diameter_mm / offset_mm)), 0)  # rows within a quarter diameter of it
+        rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
+        path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
+        far = int(np.argmin(np.append(path[x[k] + w[k]:], False)))  # the rim beyond the interior
+        if wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm:
             continue  # as narrow as a band, and array beyond it
-        stop = max(int(x[k]) - rim, 0)
-        last = np.flatnonzero(dark[:stop])
-        return (int(last[-1]) if len(last) else -1), stop
+        # the rim before it, and any array it touches: the longest dark run that ends where the
+        # interior begins, over the interior's rows
+        inner = labels[y[k] : y[k] + h[k]] == k + 1
+        first = np.argmax(inner, axis=1)
+        run = _dark_runs(cover[y[k] : y[k] + h[k]] >= cfg.dark_level)
+        near = int(np.max(np.where(first > 0, run[np.arange(h[k]), np.maximum(first - 1, 0)], 0)))
+        if near * step_mm <= cfg.bubble_rim_mm and x[k] - near > 0:  # fluid before the rim: the array ends there
+            stop = int(x[k]) - near
+            last = np.flatnonzero(path[:stop] & dark[:stop])
+        else:  # the rim touches the array: take as much off as the rim beyond the interior is thick
+            stop = max(int(x[k]) - far, 0)
+            last = np.flatnonzero(dark[:stop])
+        return (min(int(last[-1]), end) if len(last) else -1), stop
     return end, None
 
 
@@ -2252,7 +2278,16 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     # tolerance, but not at a blip of measurement noise: an excursion shorter than
     # contact_persist_mm, by less than contact_excess_mm, after which contact holds again for
     # contact_persist_mm (a real departure from the wall widens steadily)
-    touching = gaps <= cfg.contact_tol_mm
+    # the tolerance, raised by any bias of the measured gaps (MeasureConfig.contact_bias_mm): the
+    # median gap of each frame's stretch before its first gap over tol + excess
+    hard = np.where(gaps > cfg.contact_tol_mm + cfg.contact_excess_mm, cl.local, cl.n[cl.row])
+    stretch = cl.local < np.minimum.reduceat(hard, cl.start)[cl.row]
+    counts = np.add.reduceat(stretch.astype(np.intp), cl.start)
+    ranked = np.sort(np.where(stretch, np.minimum(gaps, 100.0), 500.0) + 1e3 * cl.row)  # frame by frame, ascending
+    median = ranked[cl.start + np.maximum(counts - 1, 0) // 2] - 1e3 * np.arange(len(cl.start))
+    bias = np.where(counts > 0, np.clip(median - 0.5 * cfg.contact_tol_mm, 0.0, cfg.contact_bias_mm), 0.0)
+    tol = (cfg.contact_tol_mm + bias)[cl.row]
+    touching = gaps <= tol
     pos = np.arange(len(gaps))
     end = (cl.start + cl.n)[cl.row]
     # the next touching / non-touching point of each point's frame, or the frame's end (a later
@@ -2261,7 +2296,7 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     next_away = np.minimum.accumulate(np.where(~touching, pos, end)[::-1])[::-1]
     persist = int(np.ceil(cfg.contact_persist_mm / cfg.angle_step_mm))
     resumes = next_away[np.minimum(next_touch, len(gaps) - 1)] - next_touch >= persist
-    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= cfg.contact_tol_mm + cfg.contact_excess_mm)
+    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= tol + cfg.contact_excess_mm)
     away = np.where(~touching & ~blip, cl.local, cl.n[cl.row])
     out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
     i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
@@ -2269,7 +2304,7 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     i1 = cl.start + np.minimum(i_last + 1, cl.n - 1)
     g0, g1 = gaps[i0], gaps[np.minimum(i0 + 1, len(gaps) - 1)]
     frac = np.where((out_at < cl.n) & (g1 != g0),
-                    np.minimum(np.maximum((cfg.contact_tol_mm - g0) / (g1 - g0), 0.0), 1.0), 0.0)
+                    np.minimum(np.maximum((tol[i0] - g0) / (g1 - g0), 0.0), 1.0), 0.0)
     contact = touching[cl.start]
     theta_tip = theta[cl.start]
     theta_bot = np.where(contact, theta[i0] + frac * (theta[i1] - theta[i0]), theta_tip)
