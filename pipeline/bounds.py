@@ -79,6 +79,10 @@ from scipy.optimize import nnls
 
 from vision.errors import InputError
 
+from pipeline.forcelog import parse_numeric, read_table_lines
+from pipeline.io import atomic_write_csv, atomic_write_json, provenance
+from pipeline.stats import MAX_RHO, cluster_covariance, effective_sample_size, lag1_autocorrelation
+
 __all__ = [
     "ANGLES",
     "FORMS",
@@ -199,8 +203,6 @@ def read_synced(path: str | os.PathLike) -> pd.DataFrame:
     InputError
         Missing or unreadable file, missing columns, non-numeric values (naming the line).
     """
-    from pipeline.forcelog import parse_numeric, read_table_lines
-
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "no such synced table" if not p.exists() else "synced table is not a file")
@@ -374,14 +376,12 @@ def _fit_quasi(
     mu = np.exp(np.clip(X @ beta, -50.0, 50.0))
     var = np.maximum(var_coef[0] * mu * mu + var_coef[1], 1e-12)
     pearson = (force - mu) / np.sqrt(var)
-    rho = float(np.clip(_lag1_within(pearson, groups), 0.0, 0.999))
-    n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
+    rho = float(np.clip(lag1_autocorrelation(pearson, groups, centre=False), 0.0, MAX_RHO))
+    n_eff = max(effective_sample_size(n, rho), p + 1.0)
     bread = np.linalg.pinv(X.T @ (X * (mu * mu / var)[:, None]))
     if method == "cluster":
-        scores = np.zeros((n_groups, p))
-        np.add.at(scores, codes, X * ((force - mu) * mu / var)[:, None])
-        factor = n_groups / (n_groups - 1) * (n - 1) / max(n - p, 1)
-        return beta, var_coef, factor * bread @ (scores.T @ scores) @ bread, rho, n_eff, float(n_groups - 1)
+        cov = cluster_covariance(bread, X * ((force - mu) * mu / var)[:, None], codes, n_groups)
+        return beta, var_coef, cov, rho, n_eff, float(n_groups - 1)
     dispersion = float(np.mean(pearson * pearson))
     scale = n / n_eff if method == "effective_n" else 1.0
     return beta, var_coef, dispersion * scale * bread, rho, n_eff, max((n_eff if scale != 1.0 else n) - p, 1.0)
@@ -406,14 +406,6 @@ def _satterthwaite_df(resid: np.ndarray, codes: np.ndarray, n_groups: int, df_wi
     return float(total**2 / (between**2 / (n_groups - 1) + within**2 / df_within))
 
 
-def _lag1_within(resid: np.ndarray, groups: np.ndarray) -> float:
-    """Pooled lag-1 autocorrelation of residuals within groups (rows in time order)."""
-    same = groups[1:] == groups[:-1]
-    num = float(np.sum(resid[1:][same] * resid[:-1][same]))
-    den = float(np.sum(resid * resid))
-    return num / den if den > 0 else 0.0
-
-
 def _covariance(X: np.ndarray, resid: np.ndarray, codes: np.ndarray, n_groups: int, method: str,
                 n_eff: float) -> tuple[np.ndarray, float]:
     """Coefficient covariance and its t degrees of freedom by ``method``."""
@@ -421,10 +413,7 @@ def _covariance(X: np.ndarray, resid: np.ndarray, codes: np.ndarray, n_groups: i
     xtx_inv = np.linalg.pinv(X.T @ X)
     s2 = float(resid @ resid) / max(n - p, 1)
     if method == "cluster":
-        scores = np.zeros((n_groups, p))
-        np.add.at(scores, codes, X * resid[:, None])
-        factor = n_groups / (n_groups - 1) * (n - 1) / max(n - p, 1)
-        return factor * xtx_inv @ (scores.T @ scores) @ xtx_inv, float(n_groups - 1)
+        return cluster_covariance(xtx_inv, X * resid[:, None], codes, n_groups), float(n_groups - 1)
     if method == "effective_n":
         return s2 * xtx_inv * (n / n_eff), max(n_eff - p, 1.0)
     return s2 * xtx_inv, float(max(n - p, 1))
@@ -488,8 +477,8 @@ def fit_log_model(
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     if variance == "constant":
         resid = y - X @ coef
-        rho = float(np.clip(_lag1_within(resid, g), 0.0, 0.999))
-        n_eff = max(n * (1.0 - rho) / (1.0 + rho), p + 1.0)
+        rho = float(np.clip(lag1_autocorrelation(resid, g, centre=False), 0.0, MAX_RHO))
+        n_eff = max(effective_sample_size(n, rho), p + 1.0)
         cov, df = _covariance(X, resid, codes, labels.size, method, n_eff)
         var_coef: tuple[float, ...] = (math.log(max(float(resid @ resid) / max(n - p, 1), 1e-300)),)
         scaled = resid
@@ -1077,8 +1066,6 @@ def write_bounds(
     dict
         ``json``, ``bands`` and (with ``input_path``) ``provenance`` paths.
     """
-    from pipeline.io import atomic_write_csv, atomic_write_json, provenance
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {

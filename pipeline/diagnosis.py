@@ -54,7 +54,7 @@ summary in words names the speeds, theta_con range and phases of the significant
 (leave-one-speed-out; the fold holding out the fastest speed is the extrapolation test).
 Held-out mean squared errors are compared with a bootstrap over trials stratified by speed
 (:func:`decide`). AICc and BIC of the fits to all speeds are secondary. Each effect's parameters
-get standard errors (cluster sandwich over trials, :func:`pipeline.identify._covariances`,
+get standard errors (cluster sandwich over trials, :func:`pipeline.stats.least_squares_covariances`,
 conditional on the trial gains), their largest correlation and their spread over the folds.
 
 *How much?*  Held-out RMSE of base and base + the leading effect, pooled and per speed, with
@@ -99,12 +99,13 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 from scipy.optimize import least_squares, nnls
-from scipy.signal import lfilter
+from scipy.signal import lfilter, savgol_filter
 
 from pipeline.data_needs import has_contact_angles, require
 from vision.errors import InputError
 from vision.geometry import DEFAULT_PHANTOM, Phantom
 
+from .diagnosis_experiments import splitting_experiments
 from .effects import EFFECTS, EffectContext
 from .friction import (
     DEFAULT_FRICTION_MODE,
@@ -115,7 +116,9 @@ from .friction import (
     contact_geometry,
     stribeck,
 )
-from .identify import PARAM_BOUNDS, SYNCED_COLUMNS, _corr, _covariances, _lag1, _not_moving, read_synced, validate_synced
+from .identify import PARAM_BOUNDS, SYNCED_COLUMNS, not_moving, read_synced, validate_synced
+from .io import to_jsonable
+from .stats import correlation_from_covariance, gaussian_criteria, lag1_autocorrelation, least_squares_covariances
 
 __all__ = [
     "DiagnosisConfig",
@@ -139,6 +142,7 @@ __all__ = [
     "lack_of_fit",
     "systematic_gap",
     "where_is_the_gap",
+    "trial_sse",
     "bootstrap_weights",
     "bootstrap_mse",
     "decide",
@@ -372,6 +376,20 @@ class Prepared:
         """Trials."""
         return len(self.trial_names)
 
+    def friction_coefficient(self, law: FrictionParams) -> np.ndarray:
+        """Friction coefficient (dimensionless) of ``law`` per row at the row's instantaneous speed.
+
+        Parameters
+        ----------
+        law : FrictionParams
+            The friction law (:func:`pipeline.friction.stribeck`).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        return stribeck(self.mu_speeds, law)[self.mu_idx]
+
 
 @dataclass(frozen=True, eq=False)
 class ArcQuadrature:
@@ -509,8 +527,6 @@ def smooth_angles(data: pd.DataFrame, width_s: float) -> pd.DataFrame:
     """
     if width_s <= 0:
         return data
-    from scipy.signal import savgol_filter
-
     out = data.copy()
     t_all = out["time_s"].to_numpy(float)
     cols = {c: out[c].to_numpy(float).copy() for c in ("theta_tip", "theta_bot")}
@@ -597,7 +613,7 @@ def prepare(
         raise InputError(source, f"force_g is constant in every usable row; {DATA_NEEDED}")
     data = smooth_angles(data.reset_index(drop=True), config.angle_smoothing_s)
     standing_known = "depth_mm" in data.columns and pd.to_numeric(data["depth_mm"], errors="coerce").notna().any()
-    standing_all = _not_moving(data) if standing_known else np.zeros(len(data), dtype=bool)
+    standing_all = not_moving(data) if standing_known else np.zeros(len(data), dtype=bool)
 
     groups = data.groupby("trial", sort=True).indices
     load_time = np.zeros(len(data))
@@ -1019,11 +1035,6 @@ def _friction_law(cand: Candidate, x: np.ndarray, nominal: FrictionParams) -> Fr
                    v_s_mm_s=math.exp(values["log_v_s"]), mu_v_s_per_mm=values.get("mu_v_s_per_mm", nominal.mu_v_s_per_mm))
 
 
-def _mu(ds: Prepared, law: FrictionParams) -> np.ndarray:
-    """Friction coefficient (dimensionless) per row at its instantaneous speed."""
-    return stribeck(ds.mu_speeds, law)[ds.mu_idx]
-
-
 @dataclass(frozen=True)
 class _Design:
     gained: np.ndarray          # (n, kg): pressure columns (+ gained effect columns)
@@ -1034,7 +1045,7 @@ class _Design:
 
 def _design(ds: Prepared, cand: Candidate, x: np.ndarray, nominal: FrictionParams) -> _Design:
     """The linear problem of a candidate at non-linear values ``x``."""
-    mu = _mu(ds, _friction_law(cand, x, nominal))
+    mu = ds.friction_coefficient(_friction_law(cand, x, nominal))
     a = ds.a_n + mu[:, None] * ds.a_t
     kern = cand.kernel
     fixed = np.empty((ds.n, 0))
@@ -1611,7 +1622,23 @@ def _variance_split(cells: pd.DataFrame) -> dict[str, float]:
             "interaction": max(total - ss_sc, 0.0) / total}
 
 
-def _trial_sse(ds: Prepared, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def trial_sse(ds: Prepared, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of squared residuals and rows of every trial.
+
+    Parameters
+    ----------
+    ds : Prepared
+        The data (its ``trial`` codes).
+    residual : ndarray, shape (n,)
+        Residual (g) per row.
+
+    Returns
+    -------
+    sse : ndarray, shape (T,)
+        Sum of squared residuals per trial (g²).
+    n : ndarray, shape (T,)
+        Rows per trial (float).
+    """
     sse = np.bincount(ds.trial, weights=residual**2, minlength=ds.n_trials)
     n = np.bincount(ds.trial, minlength=ds.n_trials).astype(float)
     return sse, n
@@ -1873,16 +1900,6 @@ def _n_params(ds: Prepared, fit: CandidateFit, config: DiagnosisConfig) -> int:
     return k
 
 
-def _criteria(rss: float, n: int, k_model: int) -> tuple[float, float, float]:
-    sigma2 = max(rss / n, 1e-300)
-    loglik = -0.5 * n * (math.log(2 * math.pi * sigma2) + 1.0)
-    k = k_model + 1
-    aic = 2 * k - 2 * loglik
-    aicc = aic + (2 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else float("inf"))
-    bic = k * math.log(n) - 2 * loglik
-    return aic, aicc, bic
-
-
 def _identifiability(ds: Prepared, fit: CandidateFit, folds: list[CandidateFit], config: DiagnosisConfig) -> dict:
     """Standard errors (cluster over trials, given the trial gains), correlations and fold spread of
     an effect's parameters."""
@@ -1915,9 +1932,9 @@ def _identifiability(ds: Prepared, fit: CandidateFit, folds: list[CandidateFit],
         cols.append(lin_cols[:, j] / scale)  # the + column of a signed pair
         names.append(nm)
     jac = np.column_stack(cols)
-    covs, unid = _covariances(jac, r, ds.trial, _lag1(r, ds.trial))
+    covs, unid = least_squares_covariances(jac, r, ds.trial, lag1_autocorrelation(r, ds.trial))
     cov = covs["cluster"]
-    corr = _corr(cov)
+    corr = correlation_from_covariance(cov)
     values = fit.effect_params()
     out = {}
     for pname in kern.params:
@@ -1993,8 +2010,8 @@ def diagnose(
         held[cand.name], held_shared[cand.name], held_free[cand.name], folds[cand.name] = heldout_predictions(
             ds, cand, fit, config)
     names = [c.name for c in cands]
-    sse = np.column_stack([_trial_sse(ds, ds.y - held[nm])[0] for nm in names])
-    n_tr = _trial_sse(ds, ds.y)[1]
+    sse = np.column_stack([trial_sse(ds, ds.y - held[nm])[0] for nm in names])
+    n_tr = trial_sse(ds, ds.y)[1]
     weights = bootstrap_weights(ds, config.bootstrap, rng)
     draws_all = bootstrap_mse(sse, n_tr, weights)
     draws = {nm: draws_all[:, i] for i, nm in enumerate(names)}
@@ -2042,7 +2059,7 @@ def diagnose(
     for i, cand in enumerate(cands):
         fit = fits[cand.name]
         k = _n_params(ds, fit, config)
-        aic, aicc, bic = _criteria(fit.rss, fit.n, k)
+        _, aic, aicc, bic = gaussian_criteria(fit.rss, fit.n, k + 1)  # k model parameters and sigma
         lo, hi = np.quantile(np.sqrt(draws[cand.name]), [0.025, 0.975])
         rows.append(dict(candidate=cand.name, effect=cand.effect, heldout_rmse_g=math.sqrt(mse[cand.name]),
                          heldout_rmse_lo_g=float(lo), heldout_rmse_hi_g=float(hi),
@@ -2062,13 +2079,11 @@ def diagnose(
                    for nm in dict.fromkeys(("base", leader))}
     drops = _peak_drop_summary(ds, {nm: predict(ds, f, config=pinned, gains=False) for nm, f in pinned_fits.items()},
                                held_shared, leader)
-    from .diagnosis_experiments import splitting_experiments
-
     if decision["verdict"] == "ambiguous":
         focus = decision["tied"]
     else:
         focus = [leader] + [e for e in ranking["candidate"] if e in effects and e != leader][:1]
-    experiments = splitting_experiments(ds, fits, focus) if decision["verdict"] != "no_gap" else []
+    experiments = splitting_experiments(ds, fits, focus, fitted) if decision["verdict"] != "no_gap" else []
     return Diagnosis(
         verdict=decision["verdict"], effect=decision["effect"], decision=decision, ranking=ranking, fits=fits,
         folds=folds, heldout=held, fitted=fitted, data=ds, lof=lof, where=where, gap=gap, identifiability=ident,
@@ -2160,8 +2175,6 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
         ``identifiability``, ``peak_drop``,
         ``experiments``, ``criteria``, ``data``, ``config``, ``timing_s``.
     """
-    from .io import to_jsonable
-
     ds = diag.data
     ranking = []
     for _, row in diag.ranking.iterrows():

@@ -27,6 +27,9 @@ predictions can be compared with the generator's noiseless force afterwards.
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
+import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -35,7 +38,9 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from .diagnosis import DiagnosisConfig, diagnose
+from .diagnosis import DiagnosisConfig, candidates, diagnose, fit_candidate, trial_sse
+from .synthetic import NoiseConfig, synthetic_dataset
+from .synthetic_b import generate
 
 __all__ = ["EvalConfig", "CaseSpec", "GeneratedCase", "FAMILIES", "family_a", "family_b", "case_specs", "run_case",
            "evaluate", "summarise", "format_evaluation", "NOISE_LEVELS", "VERDICT_COLUMNS"]
@@ -198,12 +203,10 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         peak_explained=float(d.peak_drop["explained_frac_fastest"]), diagnose_s=float(d.timing_s), error="",
     )
     if config.keep_errors:  # per-trial held-out errors, to study decision rules afterwards
-        from .diagnosis import _trial_sse
-
         names = list(d.fits)
         out["_names"] = names
-        out["_sse"] = np.column_stack([_trial_sse(d.data, d.data.y - d.heldout[nm])[0] for nm in names])
-        out["_n"] = _trial_sse(d.data, d.data.y)[1]
+        out["_sse"] = np.column_stack([trial_sse(d.data, d.data.y - d.heldout[nm])[0] for nm in names])
+        out["_n"] = trial_sse(d.data, d.data.y)[1]
         out["_trial_speed"] = d.data.trial_speed
         out["_lof"] = {k: (v["p_value"], v.get("level", v)["p_value"], v.get("shape", v)["p_value"])
                        for k, v in d.lof.items()}
@@ -237,8 +240,6 @@ class GeneratedCase:
 
 def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
     """A case of :mod:`pipeline.synthetic` (noise level: a factor on its white, AR(1) and tare noise)."""
-    from .synthetic import NoiseConfig, synthetic_dataset
-
     factor = config.noise_levels[spec.noise_level]
     base_noise = NoiseConfig()
     noise = replace(base_noise, white_g=base_noise.white_g * factor, ar_g=base_noise.ar_g * factor,
@@ -253,8 +254,6 @@ def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
 
 def family_b(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
     """A case of :mod:`pipeline.synthetic_b` (noise level: its ``noise_scale``)."""
-    from .synthetic_b import generate
-
     seed = int(np.random.SeedSequence(list(spec.entropy)).generate_state(1)[0])
     table, truth = generate(spec.effect, seed, strength=spec.strength if spec.effect else 1.0,
                             speeds_mm_s=config.speeds_mm_s, trials=config.trials,
@@ -285,14 +284,10 @@ def residual_gap(ds, clean_g: np.ndarray, base_g: np.ndarray, config: DiagnosisC
         The generator's noiseless force with and without the effect (g) on those rows.
     config : DiagnosisConfig
     """
-    from dataclasses import replace as _replace
-
-    from .diagnosis import candidates, fit_candidate
-
     control = next(c for c in candidates(()) if c.name == "control")
     mse = []
     for y in (clean_g, base_g):
-        fit = fit_candidate(_replace(ds, y=np.asarray(y, dtype=float)), control, config=config,
+        fit = fit_candidate(replace(ds, y=np.asarray(y, dtype=float)), control, config=config,
                             rng=np.random.default_rng(0))
         mse.append(fit.rss / fit.n)
     return float(math.sqrt(max(mse[0] - mse[1], 0.0)))
@@ -323,8 +318,6 @@ def evaluate(cases: int, seed: int, *, workers: int = 1, config: EvalConfig = Ev
     pandas.DataFrame
         One row per case (:func:`run_case`), in case order.
     """
-    import sys
-
     specs = case_specs(cases, seed, config)
     rows = []
     if workers <= 1:
@@ -334,9 +327,6 @@ def evaluate(cases: int, seed: int, *, workers: int = 1, config: EvalConfig = Ev
             if progress:
                 print(f"case {r['case']}: {r['effect']} -> {r['verdict']} {r['effect_found'] or ''}", file=sys.stderr)
     else:
-        import multiprocessing as mp
-        import os
-
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             os.environ.setdefault(var, "1")  # one BLAS thread per worker: the workers are the parallelism
         ctx = mp.get_context("spawn")

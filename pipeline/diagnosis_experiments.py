@@ -62,7 +62,7 @@ def _end_rows(ds) -> np.ndarray:
     return np.asarray(ends, dtype=int)
 
 
-def effect_predictions(ds, fit) -> dict:
+def effect_predictions(ds, fit, model_g: np.ndarray) -> dict:
     """What one fitted effect predicts for each experiment of :data:`EXPERIMENTS`.
 
     Parameters
@@ -70,7 +70,10 @@ def effect_predictions(ds, fit) -> dict:
     ds : pipeline.diagnosis.Prepared
         The data (the fastest speed's trial ends are used).
     fit : pipeline.diagnosis.CandidateFit
-        A fit of base + one effect.
+        A fit of base + one effect to all speeds.
+    model_g : ndarray, shape (n,)
+        The fit's model force (g) on every row of ``ds``, with its trial gains
+        (:func:`pipeline.diagnosis.predict`).
 
     Returns
     -------
@@ -79,18 +82,16 @@ def effect_predictions(ds, fit) -> dict:
         when the form does not fix it, "words": str}``, plus ``"_state"`` with the quantities used
         (speed mm/s, base force at the stop g, effect parameters).
     """
-    from .diagnosis import _mu, predict
-
     cand = fit.candidate
     rows = _end_rows(ds)
     v = float(ds.speeds[-1])
-    mu = _mu(ds, fit.friction)
+    mu = ds.friction_coefficient(fit.friction)
     u = fit.coef[:4]
     normal = (ds.a_n @ u)[rows]
     along = (ds.a_t @ u)[rows]
     f0 = float(np.mean(normal + mu[rows] * along))        # base part at the stop (g)
     f_retract = float(np.mean(normal - mu[rows] * along))  # base part retracting at v (g)
-    model = float(np.mean(predict(ds, fit)[rows]))  # with the fit's trial gains
+    model = float(np.mean(model_g[rows]))  # with the fit's trial gains
     p = fit.effect_params()
     name = cand.effect
     out: dict = {"_state": dict(speed_mm_s=v, base_force_at_stop_g=f0, model_force_at_stop_g=model, params=p)}
@@ -162,7 +163,7 @@ def effect_predictions(ds, fit) -> dict:
     return out
 
 
-def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]:
+def splitting_experiments(ds, fits: Mapping, focus: Sequence[str], model_g: Mapping[str, np.ndarray]) -> list[dict]:
     """Experiments ranked by how well they split the effects in ``focus``.
 
     Parameters
@@ -172,6 +173,9 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]
         Candidate name -> CandidateFit (fits to all speeds).
     focus : sequence of str
         Effects to split (the tied ones, or the leader and its runner-up).
+    model_g : mapping
+        Candidate name -> its fit's model force (g) per row, with the trial gains
+        (:func:`pipeline.diagnosis.predict`).
 
     Returns
     -------
@@ -186,7 +190,7 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str]) -> list[dict]
     focus = [e for e in dict.fromkeys(focus) if e in fits and fits[e].candidate.effect is not None]
     if len(focus) < 2:
         return []
-    preds = {e: effect_predictions(ds, fits[e]) for e in focus}
+    preds = {e: effect_predictions(ds, fits[e], model_g[e]) for e in focus}
     rows: list[dict[str, Any]] = []
     for order, (exp, protocol) in enumerate(EXPERIMENTS.items()):
         changes = [preds[e][exp]["change_g"] for e in focus]

@@ -93,6 +93,14 @@ from .friction import (
     params_from_flat,
     stribeck,
 )
+from .io import atomic_write_csv, atomic_write_json, provenance, to_jsonable
+from .stats import (
+    correlation_from_covariance,
+    effective_sample_size,
+    gaussian_criteria,
+    lag1_autocorrelation,
+    least_squares_covariances,
+)
 
 __all__ = [
     "SYNCED_COLUMNS",
@@ -105,6 +113,7 @@ __all__ = [
     "FitResult",
     "read_synced",
     "validate_synced",
+    "not_moving",
     "fit_synced",
     "fit_to_json",
     "write_fit",
@@ -308,9 +317,23 @@ class FitResult:
 # --------------------------------------------------------------------------- input
 
 
-def _not_moving(table: pd.DataFrame, fraction: float = 0.5) -> np.ndarray:
-    """Rows whose local depth rate (from ``depth_mm``, when present) is below ``fraction`` of the
-    trial's nominal speed; False where depth is unknown."""
+def not_moving(table: pd.DataFrame, fraction: float = 0.5) -> np.ndarray:
+    """Rows where the robot stands: the local depth rate is below ``fraction`` of the trial's speed.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Synced rows (``trial``, ``time_s`` s, ``speed_mm_s`` mm/s; ``depth_mm`` mm when logged).
+    fraction : float
+        Share of the nominal speed (dimensionless) below which a row counts as standing.
+
+    Returns
+    -------
+    ndarray of bool, shape (len(table),)
+        True where the depth rate (``np.gradient`` of ``depth_mm`` over ``time_s`` within a trial)
+        is below ``fraction × |speed_mm_s|``; False where depth is unknown, a trial has fewer than
+        three depth samples or its times do not increase.
+    """
     still = np.zeros(len(table), dtype=bool)
     if "depth_mm" not in table.columns:
         return still
@@ -389,7 +412,7 @@ def validate_synced(
             notes.append(f"{int(saturated.sum())} rows flagged saturated (force sensor at its limit) were left out")
             out = out[~saturated.to_numpy()]
     if moving_only:
-        still = _not_moving(out)
+        still = not_moving(out)
         if still.any():
             notes.append(f"{int(still.sum())} rows where depth_mm shows the robot standing (before the start or "
                          f"after the stop) were left out: the model describes sliding at the trial's speed")
@@ -551,73 +574,6 @@ def _model_jacobian(
         else:
             cols.append(k * direction * p_t * mu_derivs[name])
     return np.stack(cols, axis=1)
-
-
-def _lag1(residual: np.ndarray, trial: np.ndarray) -> float:
-    """Pooled lag-1 autocorrelation of residuals within trials (rows sorted by trial, time)."""
-    same = trial[1:] == trial[:-1]
-    if not same.any():
-        return 0.0
-    centred = residual - np.mean(residual)
-    num = float(np.sum(centred[1:][same] * centred[:-1][same]))
-    den = float(np.sum(centred**2))
-    return num / den if den > 0 else 0.0
-
-
-def _bread(jac: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
-    """``(J^T J)^+`` on column-scaled coordinates, and which parameters lie in its null space.
-
-    A parameter is *unidentified* when its Jacobian column is zero or it loads (> 0.1) on an
-    eigenvector of the scaled ``J^T J`` whose eigenvalue is below ``rtol`` times the largest.
-    """
-    norms = np.linalg.norm(jac, axis=0)
-    dead = ~(norms > 0)
-    scale = np.where(dead, 1.0, norms)
-    a = (jac / scale).T @ (jac / scale)
-    w, v = np.linalg.eigh(a)
-    keep = w > rtol * max(float(w.max()), 1e-300)
-    inv = (v[:, keep] / w[keep]) @ v[:, keep].T
-    null = np.abs(v[:, ~keep]).max(axis=1) > 0.1 if (~keep).any() else np.zeros(len(w), bool)
-    return inv / np.outer(scale, scale), dead | null
-
-
-def _covariances(jac: np.ndarray, r: np.ndarray, trial: np.ndarray, rho: float) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Covariances by method (naive, cluster, neff) and the mask of unidentified parameters
-    (their variances are set to inf and their covariances to NaN)."""
-    n, p = jac.shape
-    bread, unidentified = _bread(jac)
-    s2 = float(r @ r) / max(n - p, 1)
-    naive = s2 * bread
-    out = {"naive": naive}
-    codes, groups = np.unique(trial, return_inverse=True)
-    g = len(codes)
-    if g >= 2:
-        scores = np.zeros((g, p))
-        np.add.at(scores, groups, jac * r[:, None])
-        meat = scores.T @ scores
-        c = g / (g - 1) * (n - 1) / max(n - p, 1)
-        out["cluster"] = c * bread @ meat @ bread
-    else:
-        out["cluster"] = np.full((p, p), np.nan)
-    rho_c = min(max(rho, 0.0), 0.999)
-    n_eff = n * (1 - rho_c) / (1 + rho_c)
-    out["neff"] = naive * n / max(n_eff, 1.0)
-    if unidentified.any():
-        for cov in out.values():
-            cov[unidentified, :] = np.nan
-            cov[:, unidentified] = np.nan
-            cov[unidentified, unidentified] = np.inf
-    return out, unidentified
-
-
-def _corr(cov: np.ndarray) -> np.ndarray:
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        corr = np.clip(cov / np.outer(sd, sd), -1.0, 1.0)
-    corr[~np.isfinite(sd), :] = np.nan
-    corr[:, ~np.isfinite(sd)] = np.nan
-    np.fill_diagonal(corr, 1.0)
-    return corr
 
 
 def _by_speed(res: pd.DataFrame) -> pd.DataFrame:
@@ -829,8 +785,8 @@ def fit_synced(
                      f"several minima or flat directions")
 
     jac = jacobian(u)
-    rho = _lag1(r, trial)
-    covs, unidentified = _covariances(jac, r, trial, rho)
+    rho = lag1_autocorrelation(r, trial)
+    covs, unidentified = least_squares_covariances(jac, r, trial, rho)
     for name in np.asarray(names)[unidentified]:
         notes.append(f"{name} is not identified by these data (the fit does not change along a direction that "
                      f"moves it): its standard error is reported as infinite")
@@ -841,7 +797,7 @@ def fit_synced(
     cov = covs[method]
     with np.errstate(invalid="ignore"):
         se_u = {m: np.sqrt(np.clip(np.diag(c), 0.0, None)) for m, c in covs.items()}
-    corr = _corr(cov)
+    corr = correlation_from_covariance(cov)
     dx_du = np.where(is_log, x, 1.0)
     at_bound = np.isclose(u, lo, rtol=1e-6, atol=1e-10) | np.isclose(u, hi, rtol=1e-6, atol=1e-10)
     params = {}
@@ -857,11 +813,8 @@ def fit_synced(
     notes += _identifiability_notes(names, corr, jac, u, is_log, params, check_condition=not unidentified.any())
 
     sigma2 = rss / n
-    loglik = -0.5 * n * (math.log(2 * math.pi * max(sigma2, 1e-300)) + 1.0)
     k = p + 1
-    aic = 2 * k - 2 * loglik
-    bic = k * math.log(n) - 2 * loglik
-    aicc = aic + (2 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else float("inf"))
+    loglik, aic, aicc, bic = gaussian_criteria(rss, n, k)
     model_params = _build(x, names, base_flat, tie_mu)
     final_flat = flat_params(model_params)
     fixed = {nm: final_flat[nm] for nm in FLAT_NAMES if nm not in names}
@@ -875,7 +828,7 @@ def fit_synced(
         n=n, k=k, rss=rss, rmse_g=float(np.sqrt(sigma2)), sigma_g=float(np.sqrt(sigma2)),
         loglik=float(loglik), aic=float(aic), aicc=float(aicc), bic=float(bic),
         by_speed=_by_speed(residuals), se_method=method, n_trials=n_trials, rho_lag1=float(rho),
-        n_eff=float(n * (1 - min(max(rho, 0.0), 0.999)) / (1 + min(max(rho, 0.0), 0.999))),
+        n_eff=float(effective_sample_size(n, rho)),
         warnings=tuple(notes), starts=starts_df, residuals=residuals, friction_mode=mode,
     )
 
@@ -899,8 +852,6 @@ def fit_to_json(result: FitResult) -> dict:
         ``n_eff``, ``fixed``, ``model``, ``warnings``, ``starts``, ``formulas``. JSON-safe:
         non-finite numbers (an unidentified parameter's infinite stderr) become None.
     """
-    from .io import to_jsonable
-
     names = list(result.params)
     return to_jsonable({
         "params": {nm: {"value": e.value, "stderr": e.stderr, "stderr_naive": e.stderr_naive,
@@ -952,8 +903,6 @@ def write_fit(result: FitResult, out_dir: str | os.PathLike, *, source: str | os
     Path
         The fit.json path.
     """
-    from .io import atomic_write_csv, atomic_write_json, provenance
-
     out = Path(out_dir)
     path = atomic_write_json(out / "fit.json", fit_to_json(result))
     atomic_write_csv(out / "fit_residuals.csv", result.residuals)

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from pipeline.stats import mad_sd
+
 __all__ = ["KinematicsConfig", "InsertionFit", "fit_insertion", "insertion_depth", "flag_kinematics"]
 
 
@@ -141,7 +143,7 @@ def fit_insertion(time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfi
     lo, hi = float(min(p[2], p[3])), float(max(p[2], p[3]))
     r = np.clip(p[0] + p[1] * t, lo, hi) - d
     near = np.abs(r) <= cfg.tol_mm
-    sigma = 1.4826 * float(np.median(np.abs(r[near]))) if near.any() else math.inf
+    sigma = mad_sd(r[near], centre=False) if near.any() else math.inf
     tol = max(cfg.tol_mm, cfg.spread * sigma)
     share = float(np.mean(np.abs(r) <= tol))
     return InsertionFit(float(p[0]), float(p[1]), lo, hi, sigma, tol, share)

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.stats import mad_sd
+
 __all__ = ["Motion", "NoMotion", "find_motion", "rest_noise"]
 
 
@@ -105,7 +107,7 @@ def rest_noise(depth_mm: np.ndarray) -> float:
     if d.size < 3:
         return 0.0
     step = np.diff(d)
-    return 1.4826 * float(np.median(np.abs(step - np.median(step)))) / math.sqrt(2.0)
+    return mad_sd(step) / math.sqrt(2.0)
 
 
 def _crossing(t0: float, t1: float, a0: float, a1: float, level: float) -> float:

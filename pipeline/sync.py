@@ -84,6 +84,7 @@ from pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
 from pipeline.labstreams import read_lab_logs, track_coverage
 from pipeline.logformat import LogFormat, read_log_format
 from pipeline.motion import Motion
+from pipeline.stats import mad_sd
 from vision.errors import InputError, is_input_error, one_line
 
 __all__ = [
@@ -552,7 +553,7 @@ def _angle_noise_s(t: np.ndarray, x: np.ndarray) -> float:
     if x.size < 8:
         return math.inf
     d2 = np.diff(x, 2)
-    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    sigma = mad_sd(d2) / math.sqrt(6.0)
     lo_v, span = float(np.min(x)), float(np.ptp(x))
     if not span > 0:
         return math.inf
@@ -681,7 +682,7 @@ def still_frames(angles: pd.DataFrame, force: pd.DataFrame, offset_s: float) -> 
     tf = angles["time_s"].to_numpy(dtype=float)[good] + offset_s
     x = angles["theta_tip"].to_numpy(dtype=float)[good]
     d2 = np.diff(x, 2)
-    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0) if d2.size else 0.0
+    sigma = mad_sd(d2) / math.sqrt(6.0) if d2.size else 0.0
     inside = (tf >= t_log[0]) & (tf <= t_log[-1])
     # a group must be long enough that a moving tip would leave the 4-sigma band within it
     step = float(np.ptp(x)) / max(x.size - 1, 1)  # mean tip angle change a frame (rad)

@@ -360,9 +360,10 @@ def test_splitting_experiments_rank_by_the_fixed_predictions(monkeypatch):
         "c": {"retraction": 0.0, "viscosity": None, "dwell": None, "baseline": 0.0},
     }
     monkeypatch.setattr(dx, "effect_predictions",
-                        lambda ds, fit: {k: {"change_g": v, "words": "w"} for k, v in table[fit.name].items()})
+                        lambda ds, fit, model_g: {k: {"change_g": v, "words": "w"} for k, v in table[fit.name].items()})
     fits = {e: SimpleNamespace(name=e, candidate=SimpleNamespace(effect=e)) for e in table}
-    rows = dx.splitting_experiments(None, fits, ["a", "b", "c"])
+    model = {e: None for e in table}
+    rows = dx.splitting_experiments(None, fits, ["a", "b", "c"], model)
     by = {r["experiment"]: r for r in rows}
     assert by["retraction"]["min_difference_g"] == pytest.approx(0.4) and by["retraction"]["complete"]
     assert by["viscosity"]["min_difference_g"] == pytest.approx(0.9) and not by["viscosity"]["complete"]
@@ -370,6 +371,6 @@ def test_splitting_experiments_rank_by_the_fixed_predictions(monkeypatch):
     # viscosity ranks at 0.45 (half of 0.9, incomplete), above retraction's 0.4
     assert [r["experiment"] for r in rows][:2] == ["viscosity", "retraction"] and rows[0]["recommended"]
     # with "a" and "c" only, the dwell and the viscosity have one fixed prediction: no difference
-    by = {r["experiment"]: r for r in dx.splitting_experiments(None, fits, ["a", "c"])}
+    by = {r["experiment"]: r for r in dx.splitting_experiments(None, fits, ["a", "c"], model)}
     assert by["dwell"]["min_difference_g"] is None and not by["dwell"]["complete"]
     assert by["retraction"]["min_difference_g"] == pytest.approx(1.0) and by["retraction"]["recommended"]
