@@ -20,7 +20,7 @@
    stages (survey, edges, centre line, angles);
 3. **peak memory** (resident set, MiB) of :func:`pipeline.batch.process_video` on the video and
    on a ``long_factor`` times longer one (the same frames looped), each in a fresh Python process
-   (a peak is per process; see :func:`_peak_rss_mib`), so that streaming shows as two nearly
+   (a peak is per process; see :func:`pipeline.memory.peak_rss_mib`), so that streaming shows as two nearly
    equal figures;
 4. **diagnosis time** of :func:`pipeline.diagnosis.diagnose` on a synthetic 5-speed ×
    ``trials`` dataset (:func:`pipeline.synthetic.synthetic_dataset`, no video);
@@ -40,7 +40,6 @@ import dataclasses
 import json
 import os
 import pickle
-import resource
 import shutil
 import statistics
 import subprocess
@@ -53,6 +52,8 @@ from typing import Any, Callable, Iterator
 
 from threadpoolctl import threadpool_limits
 
+from pipeline.logbench import bench_log_read, format_log_bench
+from pipeline.memory import peak_rss_mib
 from vision.errors import one_line
 
 __all__ = ["BenchConfig", "render_bench_video", "loop_video", "run_bench", "format_bench", "SECTIONS"]
@@ -212,24 +213,6 @@ def loop_video(src: str | os.PathLike, dst: str | os.PathLike, times: int, *, fp
     return Path(dst)
 
 
-def _peak_rss_mib() -> float:
-    """Peak resident set size of this process (MiB).
-
-    On Linux it is ``VmHWM`` of ``/proc/self/status``: the high-water mark of this process's own
-    memory map. ``ru_maxrss`` is not used there because exec keeps the larger of the old and the
-    new map's peaks, so a child started by a big parent (vfork + exec) would report the parent's.
-    """
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return float(line.split()[1]) / 1024.0  # kB
-    except OSError:
-        pass
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / 1024.0 / (1024.0 if sys.platform == "darwin" else 1.0)  # bytes on macOS, KiB elsewhere
-
-
 # --------------------------------------------------------------------------- 1-2: decode vs extraction
 
 
@@ -371,12 +354,12 @@ def _child_rss(argv: list[str]) -> None:
     fps = float(argv[2]) if len(argv) > 2 else None
     with open(cfg_path, "rb") as fh:
         cfg = pickle.load(fh)
-    before = _peak_rss_mib()
+    before = peak_rss_mib()
     with tempfile.TemporaryDirectory(prefix="tympani-bench-rss-") as out:
         t0 = time.perf_counter()
         summary = process_video(video, out, cfg, fps=fps, overwrite=True)
         seconds = time.perf_counter() - t0
-    print(json.dumps({"import_rss_mib": before, "peak_rss_mib": _peak_rss_mib(), "n_frames": int(summary["n_frames"]),
+    print(json.dumps({"import_rss_mib": before, "peak_rss_mib": peak_rss_mib(), "n_frames": int(summary["n_frames"]),
                       "n_ok": int(summary["n_ok"]), "seconds": seconds}))
 
 
@@ -455,8 +438,6 @@ def _workers(path: Path, cfg: Any, fps: float | None, config: BenchConfig, tmp: 
 
 def _logs(config: BenchConfig, tmp: Path) -> dict:
     """Section 6: read a ``config.log_rows``-row ROS force CSV in a fresh process."""
-    from pipeline.logbench import bench_log_read
-
     return bench_log_read(config.log_rows, seed=config.seed, folder=tmp / "logs")
 
 
@@ -551,7 +532,7 @@ def run_bench(
     finally:
         cv2.setNumThreads(threads)
         blas.restore_original_limits()
-    result["peak_rss_mib"] = _peak_rss_mib()
+    result["peak_rss_mib"] = peak_rss_mib()
     result["total_s"] = time.perf_counter() - t_start
     return result
 
@@ -606,8 +587,6 @@ def format_bench(result: dict) -> str:
             lines.append(f"  {w['workers']:<12d} {w['videos']:6d} {w['seconds']:7.2f} {w['videos_per_s']:9.2f} "
                          f"{w['frames_per_s']:9.1f}{note}")
     if "logs" in result:
-        from pipeline.logbench import format_log_bench
-
         lines.append(format_log_bench(result["logs"]))
     for name, reason in errors.items():
         lines.append(f"{name:<14s} FAILED: {reason}")

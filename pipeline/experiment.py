@@ -32,20 +32,20 @@ import numpy as np
 import pandas as pd
 
 from vision.rendering import (
-    ArrayShape,
-    ContactPolicy,
     VideoSpec,
     random_appearance,
     random_nuisance,
+    random_policy,
     random_pose,
     render_video,
 )
 
 from .friction import FrictionParams, insertion_force
-from .paper import paper_params
 from .io import atomic_write_csv, atomic_write_json
+from .paper import paper_params
+from .synthetic import TrialState, apply_hidden_effect, draw_effect_params, effect_truth, trial_name
 
-__all__ = ["ExperimentConfig", "SensorConfig", "random_policy", "clean_forces_from_truth", "force_log_from_truth",
+__all__ = ["ExperimentConfig", "SensorConfig", "clean_forces_from_truth", "force_log_from_truth",
            "render_experiment"]
 
 
@@ -128,21 +128,6 @@ class ExperimentConfig:
     paired: bool = False
 
 
-def random_policy(rng: np.random.Generator) -> ContactPolicy:
-    """A plausible, random way for the contact run to grow during one insertion."""
-    shape = ArrayShape(
-        departure_rad=float(rng.uniform(0.35, 0.7)),
-        far_offset=float(rng.uniform(-0.7, 0.2)),
-        start_blend_rad=float(rng.uniform(0.4, 0.8)),
-    )
-    return ContactPolicy(
-        theta_first=float(rng.uniform(1.0, 1.8)),
-        lag=float(rng.uniform(0.15, 0.45)),
-        approach_rad=float(rng.uniform(0.4, 0.8)),
-        shape=shape,
-    )
-
-
 def _force_clock(truth: pd.DataFrame, speed_mm_s: float, sensor: SensorConfig):
     """Sample times (s, sensor clock), depth (mm), instantaneous speed (mm/s) and true angles (rad)."""
     t_video_end = float(truth.time_s.iloc[-1])
@@ -195,8 +180,6 @@ def clean_forces_from_truth(
     base = np.where(tip > bot, insertion_force(bot, tip, v, params), 0.0)
     with_effect = base
     if effect is not None:
-        from .synthetic import TrialState, apply_hidden_effect
-
         state = TrialState.single(t, depth, v, tip, bot, params)
         with_effect = apply_hidden_effect(effect, base, state, effect_values or {},
                                           rng if rng is not None else np.random.default_rng(0))
@@ -255,10 +238,6 @@ def force_log_from_truth(
     return _sense(clean, rng, sensor)
 
 
-def _trial_name(speed: float, k: int) -> str:
-    return f"v{speed:g}_t{k + 1:02d}".replace(".", "p")
-
-
 def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentConfig(), *, seed: int = 0) -> pd.DataFrame:
     """Render a synthetic experiment to ``out_dir`` and return its manifest.
 
@@ -285,14 +264,12 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
     effect = None if cfg.effect is None or str(cfg.effect).lower() == "none" else str(cfg.effect)
     values = {}
     if effect is not None:
-        from .synthetic import draw_effect_params
-
         values = draw_effect_params(effect, effect_rng, cfg.strength, dict(cfg.effect_params))
     shared = [random_policy(rng) for _ in range(cfg.trials)] if cfg.paired else None
     rows, cleans, logs = [], [], []
     for speed in cfg.speeds_mm_s:
         for k in range(cfg.trials):
-            trial = _trial_name(speed, k)
+            trial = trial_name(speed, k)
             spec = VideoSpec(
                 pose=pose, width=cfg.width, height=cfg.height, fps=cfg.fps, speed_mm_s=speed,
                 start_depth_mm=-1.0, end_depth_mm=cfg.depth_mm, dwell_s=cfg.dwell_s,
@@ -314,8 +291,6 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
                              fps=spec.effective_fps(), video_t0_s=cfg.sensor.lead_s))
     manifest = pd.DataFrame(rows)
     atomic_write_csv(out / "manifest.csv", manifest)
-    from .synthetic import effect_truth
-
     atomic_write_json(out / "truth" / "effect.json",
                       effect_truth(effect, cfg.strength, values, pd.concat(cleans, ignore_index=True),
                                    np.concatenate([lg["force_g"].to_numpy() for lg in logs]), base=params,

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.memory import peak_rss_mib
+
 __all__ = ["ROS_FORMAT", "write_ros_force_csv", "bench_log_read", "format_log_bench"]
 
 #: The log format of the written log (force column ``field.Fz`` in N, pushing reads negative).
@@ -76,16 +78,15 @@ def write_ros_force_csv(path: str | os.PathLike, rows: int, *, seed: int = 0, ra
 
 def _child(path: str, fmt_path: str) -> None:
     """Body of the subprocess: read the log through its format, print one JSON line."""
-    from pipeline.bench import _peak_rss_mib
     from pipeline.labstreams import read_force_stream
     from pipeline.logformat import read_log_format
 
     fmt = read_log_format(fmt_path)
-    before = _peak_rss_mib()
+    before = peak_rss_mib()
     t0 = time.perf_counter()
     data, report, _ = read_force_stream(path, fmt.force)  # type: ignore[arg-type]
     seconds = time.perf_counter() - t0
-    print(json.dumps({"import_rss_mib": before, "peak_rss_mib": _peak_rss_mib(), "seconds": seconds,
+    print(json.dumps({"import_rss_mib": before, "peak_rss_mib": peak_rss_mib(), "seconds": seconds,
                       "rows": report.n_rows, "samples": len(data)}))
 
 

@@ -81,7 +81,7 @@ One trial (force clock, ``time_s`` from 0 at the start of the log)::
     t_stop ≤ t ≤ +dwell  robot holds: no sliding (mu = mu_s), drag vanishes, a lagging sensor
                          relaxes, a lift film squeezes out slowly, drift goes on
 
-Trials differ in their contact growth (:func:`pipeline.experiment.random_policy`), their pressure
+Trials differ in their contact growth (:func:`vision.rendering.random_policy`), their pressure
 scale (± 10 %), speed (± 2 %) and noise scale. The force noise is white + AR(1) with a per-trial
 scale and a small tare offset, quantised by a 13-bit A/D over ``±range_g``. The angles are the
 renderer's geometry (:func:`kinematics_table`, a vectorised twin of
@@ -101,6 +101,7 @@ from typing import Any, Callable, Literal, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from vision.geometry import (
@@ -112,7 +113,7 @@ from vision.geometry import (
     channel_width,
     entry_frame,
 )
-from vision.rendering import ContactPolicy
+from vision.rendering import ContactPolicy, random_policy
 
 from .friction import (
     DEFAULT_FRICTION_MODE,
@@ -128,6 +129,7 @@ from .friction import (
     force_from_integrals,
     stribeck,
 )
+from .io import atomic_write_csv, atomic_write_json
 from .paper import PAPER_DROPS_PCT, paper_params
 
 __all__ = [
@@ -937,8 +939,6 @@ def trial_name(speed_mm_s: float, k: int) -> str:
 
 
 def _random_policy(rng: np.random.Generator, var: Variability) -> ContactPolicy:
-    from .experiment import random_policy
-
     policy = random_policy(rng)
     return replace(policy, theta_first=float(rng.uniform(*var.theta_first_rad)), lag=float(rng.uniform(*var.lag)))
 
@@ -1277,8 +1277,6 @@ def write_experiment(out_dir: str | Path, synced: pd.DataFrame, truth: Mapping, 
     pandas.DataFrame
         The manifest.
     """
-    from .io import atomic_write_csv, atomic_write_json
-
     out = Path(out_dir)
     proto = dict(truth.get("protocol", {}))
     t0 = float(proto.get("video_t0_s", 0.0))
@@ -1423,8 +1421,6 @@ def calibrate_paper_lift(*, targets_pct: Mapping[float, float] = PAPER_DROPS_PCT
     dict
         The full parameter set (:data:`PAPER_LIFT` keys) with the fitted values.
     """
-    from scipy.optimize import least_squares
-
     quiet = NoiseConfig(white_g=0.0, ar_g=0.0, tare_sd_g=0.0, bits=0, angle_sd_rad=0.0)
     speeds = (0.5, *sorted(targets_pct))
 

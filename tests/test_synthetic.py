@@ -229,7 +229,7 @@ def test_peak_force_drop_table():
 
 
 def test_kinematics_agree_with_the_renderer():
-    from pipeline.experiment import random_policy
+    from vision.rendering import random_policy
 
     policy = random_policy(np.random.default_rng(4))
     depths = np.array([-0.5, 1.0, 4.0, 7.0, 10.0, 13.0, 15.0])

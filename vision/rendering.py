@@ -59,6 +59,7 @@ __all__ = [
     "array_at_angles",
     "pose_at_depth",
     "random_pose",
+    "random_policy",
     "random_appearance",
     "random_nuisance",
     "random_harsh_nuisance",
@@ -1394,6 +1395,35 @@ def random_pose(
     hi = np.array([width, height]) - probe.max(axis=0) * scale - margin_px
     cx, cy = rng.uniform(lo, np.maximum(hi, lo))
     return CameraPose(float(cx), float(cy), rot, scale, mirrored)
+
+
+def random_policy(rng: np.random.Generator) -> ContactPolicy:
+    """A plausible, random way for the contact run to grow during one insertion.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of six uniform draws, in a fixed order (the shape's three, then the policy's).
+
+    Returns
+    -------
+    ContactPolicy
+        First contact at a tip angle of 1.0–1.8 rad, a contact start that follows 15–45 % of
+        the tip's advance, an approach over 0.4–0.8 rad; basally (:class:`ArrayShape`) the array
+        leaves the wall over 0.35–0.7 rad, settles at -0.7 to +0.2 of the lateral play and leaves
+        the insertion axis over 0.4–0.8 rad.
+    """
+    shape = ArrayShape(
+        departure_rad=float(rng.uniform(0.35, 0.7)),
+        far_offset=float(rng.uniform(-0.7, 0.2)),
+        start_blend_rad=float(rng.uniform(0.4, 0.8)),
+    )
+    return ContactPolicy(
+        theta_first=float(rng.uniform(1.0, 1.8)),
+        lag=float(rng.uniform(0.15, 0.45)),
+        approach_rad=float(rng.uniform(0.4, 0.8)),
+        shape=shape,
+    )
 
 
 def random_appearance(rng: np.random.Generator) -> Appearance:
