@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
-import csv
 import dataclasses
 import math
 import os
@@ -47,7 +46,7 @@ import numpy as np
 import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
-from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
+from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, csv_records, provenance, remove_stale_temps
 from pipeline.kinematics import KinematicsConfig, flag_kinematics
 from vision.errors import InputError, is_input_error, one_line
 from vision.frames import Frame, FrameSource, LensCalibration, check_decoder_threads, open_frames, to_gray, undistorter
@@ -1300,25 +1299,24 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
     base = mpath.resolve().parent
     try:
         with open(mpath, newline="", encoding="utf-8-sig") as fh:
-            lines = [(i, line) for i, line in enumerate(fh, start=1) if line.strip() and not line.lstrip().startswith("#")]
+            line_numbers, rows = csv_records(fh)
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(mpath, f"cannot read manifest ({one_line(exc)})") from None
-    if not lines:
+    if not line_numbers:
         raise InputError(mpath, "empty manifest (no header row)")
-    rows = list(csv.reader(line for _, line in lines))
     header = [h.strip() for h in rows[0]]
     if len(set(header)) != len(header):
-        raise InputError(f"{mpath}:{lines[0][0]}", "duplicate column names in the header")
+        raise InputError(f"{mpath}:{line_numbers[0]}", "duplicate column names in the header")
     missing = [c for c in MANIFEST_REQUIRED if c not in header]
     if missing:
-        raise InputError(f"{mpath}:{lines[0][0]}", f"missing column(s): {', '.join(missing)}")
+        raise InputError(f"{mpath}:{line_numbers[0]}", f"missing column(s): {', '.join(missing)}")
     if "video" not in header and "angles" not in header:
-        raise InputError(f"{mpath}:{lines[0][0]}", "needs a 'video' or an 'angles' column")
+        raise InputError(f"{mpath}:{line_numbers[0]}", "needs a 'video' or an 'angles' column")
     if len(rows) == 1:
         raise InputError(mpath, "manifest has no trials")
     records: list[dict[str, Any]] = []
     seen: dict[str, int] = {}
-    for (lineno, _), values in zip(lines[1:], rows[1:]):
+    for lineno, values in zip(line_numbers[1:], rows[1:]):
         where = f"{mpath}:{lineno}"
         if len(values) != len(header):
             raise InputError(where, f"{len(values)} fields, but the header has {len(header)}")

@@ -45,6 +45,7 @@ from typing import IO, Any, Callable, Iterator, Literal, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from pipeline.io import csv_records, to_jsonable
 from vision.errors import InputError, one_line
 
 __all__ = [
@@ -211,8 +212,6 @@ class ForceLogReport:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-compatible dict of the report (non-finite floats become None)."""
-        from pipeline.io import to_jsonable
-
         return to_jsonable(self)
 
 
@@ -250,28 +249,19 @@ def read_table_lines(
     InputError
         No header, or a data row with a different number of fields than the header.
     """
-    kept: list[tuple[int, str]] = []
     comments: list[str] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            comments.append(stripped[1:].strip())
-            continue
-        kept.append((lineno, line))
-    if not kept:
+    line_numbers, parsed = csv_records(text.splitlines(), comments)
+    if not line_numbers:
         raise InputError(name, "no header row (the file is empty or has only comments)")
-    parsed = list(csv.reader(line for _, line in kept))
     header = [h.strip() for h in parsed[0]]
     if len(set(header)) != len(header):
-        raise InputError(f"{name}:{kept[0][0]}", "duplicate column names in the header")
+        raise InputError(f"{name}:{line_numbers[0]}", "duplicate column names in the header")
     rows = []
-    for (lineno, _), values in zip(kept[1:], parsed[1:]):
+    for lineno, values in zip(line_numbers[1:], parsed[1:]):
         if len(values) != len(header):
-            raise InputError(f"{name}:{lineno}", f"{len(values)} fields, but the header (line {kept[0][0]}) has {len(header)}")
+            raise InputError(f"{name}:{lineno}", f"{len(values)} fields, but the header (line {line_numbers[0]}) has {len(header)}")
         rows.append([v.strip() for v in values])
-    return header, rows, np.array([k for k, _ in kept[1:]], dtype=int), comments
+    return header, rows, np.array(line_numbers[1:], dtype=int), comments
 
 
 #: Data rows parsed at a time by :func:`read_csv_columns` (a chunk's text and arrays are the

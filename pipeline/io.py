@@ -10,11 +10,15 @@ by a killed process).
 A write that the operating system refuses (read-only folder, permission denied, disk full, ...)
 raises :class:`OutputError`, an :class:`~vision.errors.InputError` that names the file the
 command could not write: the command line reports it in one line with exit status 2.
+
+The project's CSV inputs (manifests, force logs, synced tables) may carry ``#`` comment lines;
+:func:`csv_records` is the one reader that skips them and keeps every record's line number.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
 import dataclasses
 import datetime as _dt
 import errno
@@ -26,7 +30,7 @@ import platform
 import secrets
 import sys
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any, Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -47,6 +51,7 @@ __all__ = [
     "content_hash",
     "tool_version",
     "provenance",
+    "csv_records",
     "HASH_CHUNK_BYTES",
 ]
 
@@ -396,3 +401,41 @@ def provenance(input_path: str | os.PathLike, params: dict, **extra: Any) -> dic
     }
     record.update(to_jsonable(extra))
     return record
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def csv_records(lines: Iterable[str], comments: list[str] | None = None) -> tuple[list[int], list[list[str]]]:
+    """The records of a CSV text without its blank lines and ``#`` comment lines.
+
+    A line is a comment when its first non-blank character is ``#``; a ``#`` anywhere else (in a
+    field, quoted or not) is data. (pandas' ``read_csv(comment="#")`` would also cut a line at an
+    unquoted ``#`` and lose the line numbers, so it is not used.)
+
+    Parameters
+    ----------
+    lines : iterable of str
+        The text's lines: a file opened with ``newline=""``, or ``str.splitlines()``.
+    comments : list of str, optional
+        Receives the text of every comment line after its ``#``, stripped, in file order.
+
+    Returns
+    -------
+    line_numbers : list of int
+        1-based line number of every kept line, in file order (the header's first).
+    records : list of list of str
+        The kept lines parsed by :func:`csv.reader` (fields not stripped); one a kept line
+        unless a quoted field spans lines.
+    """
+    kept: list[tuple[int, str]] = []
+    for lineno, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            if comments is not None:
+                comments.append(stripped[1:].strip())
+            continue
+        kept.append((lineno, line))
+    return [k for k, _ in kept], list(csv.reader(line for _, line in kept))

@@ -70,7 +70,6 @@ measured frame, the angles are NaN (no extrapolation, no bridging of long gaps).
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 from dataclasses import dataclass, replace
@@ -81,6 +80,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
+from pipeline.io import atomic_write_csv, atomic_write_json, csv_records, tool_version
 from pipeline.labstreams import read_lab_logs, track_coverage
 from pipeline.logformat import LogFormat, read_log_format
 from pipeline.motion import Motion
@@ -828,15 +828,14 @@ def sync_trial(
 def _manifest_t0_cells(path: Path) -> dict[int, str]:
     """The raw ``video_t0_s`` cell of every manifest line (read_manifest turns blanks into 0)."""
     with open(path, newline="", encoding="utf-8-sig") as fh:
-        lines = [(i, line) for i, line in enumerate(fh, start=1) if line.strip() and not line.lstrip().startswith("#")]
-    if not lines:
+        line_numbers, rows = csv_records(fh)
+    if not line_numbers:
         return {}
-    rows = list(csv.reader(line for _, line in lines))
     header = [h.strip() for h in rows[0]]
     if "video_t0_s" not in header:
         return {}
     j = header.index("video_t0_s")
-    return {ln: vals[j].strip() for (ln, _), vals in zip(lines[1:], rows[1:]) if len(vals) > j}
+    return {ln: vals[j].strip() for ln, vals in zip(line_numbers[1:], rows[1:]) if len(vals) > j}
 
 
 def _angles_path(row: pd.Series, angles_dir: Path, where: str) -> Path:
@@ -1021,8 +1020,6 @@ def write_sync(result: SyncResult, out: str | os.PathLike, *, cfg: SyncConfig = 
         ``trials`` (per trial: offset, uncertainty, method, estimate, warnings, cleaning,
         error).
     """
-    from pipeline.io import atomic_write_csv, atomic_write_json, tool_version
-
     table_path = None
     if any(t.status == "ok" for t in result.trials):
         table_path = atomic_write_csv(out, result.table)
