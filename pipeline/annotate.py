@@ -9,9 +9,10 @@ angles of the drawn frames.
 
 Manual labels are image points (px) of the array's tip and of the start of its contact run,
 per frame: ``frame, tip_x_px, tip_y_px, bot_x_px, bot_y_px`` (either point may be blank). They
-are converted to SPEC angles with the frame's registration (``point_angle(pose.to_phantom(px))``)
-and stored in ``<trial>.labels.csv``; ``<trial>.label_compare.csv`` puts them beside the
-automatic angles with the differences ``d_theta_* = auto - label`` (rad).
+are converted to phantom angles (rad, as in the angles table) with the frame's registration
+(``point_angle(pose.to_phantom(px))``) and stored in ``<trial>.labels.csv``;
+``<trial>.label_compare.csv`` puts them beside the automatic angles with the differences
+``d_theta_* = auto - label`` (rad).
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def read_labels(path: str | os.PathLike) -> pd.DataFrame:
 
 
 def label_angles(label: pd.Series | dict, registration: Any, phantom: Phantom) -> dict:
-    """SPEC angles (rad) of one label's points, mapped with ``registration.pose``.
+    """Phantom angles (rad, as in the angles table) of one label's points, mapped with ``registration.pose``.
 
     Returns
     -------

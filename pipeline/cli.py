@@ -1,4 +1,4 @@
-"""The ``tympani`` command line (SPEC §7).
+"""The ``tympani`` command line (every command is described in ``docs/commands.md``).
 
 Each subcommand is a :class:`Command` in :data:`COMMANDS`: a help line, a function that adds
 its arguments to an ``argparse`` parser, and a function that runs it and returns the exit
@@ -76,7 +76,7 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
                        help="mark frames not ok, in runs as well as alone, whose insertion depth lies this far (mm) "
                             "from the video's constant-speed insertion (0: never; default 0.5)")
     group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
-                       help="the electrode array's diameters in mm at its tip and its base (default: SPEC's 0.6,1.2)")
+                       help="the electrode array's diameters in mm at its tip and its base (default 0.6,1.2)")
     group.add_argument("--calibration", metavar="JSON",
                        help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
                             "the lens is taken out of registration, checks and measurement")
@@ -100,7 +100,8 @@ def _extract_config(args: argparse.Namespace):
 
 def _configure_extract(p: argparse.ArgumentParser) -> None:
     p.add_argument("videos", nargs="*", metavar="VIDEO", help="video files or folders of frames")
-    p.add_argument("--manifest", metavar="M", help="manifest CSV (SPEC §6); its rows with a video are extracted")
+    p.add_argument("--manifest", metavar="M",
+                   help="manifest CSV (docs/file-formats.md); its rows with a video are extracted")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -305,17 +306,19 @@ def _size(text: str) -> tuple[int, int]:
 
 def _configure_render(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--speeds", type=speed_list, default=(0.5, 1.5, 3.0, 5.0, 7.5), help="insertion speeds, mm/s")
-    p.add_argument("--trials", type=positive_int, default=2, help="repeats per speed")
-    p.add_argument("--seed", type=int, default=0, help="seed of everything random")
-    p.add_argument("--depth", type=positive_float, default=15.0, help="final insertion depth, mm")
-    p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate, 1/s")
+    p.add_argument("--speeds", type=speed_list, default=(0.5, 1.5, 3.0, 5.0, 7.5),
+                   help="insertion speeds, mm/s (default 0.5,1.5,3,5,7.5)")
+    p.add_argument("--trials", type=positive_int, default=2, help="repeats per speed (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of everything random (default 0)")
+    p.add_argument("--depth", type=positive_float, default=15.0, help="final insertion depth, mm (default 15)")
+    p.add_argument("--fps", type=positive_float, default=30.0, help="frame rate, 1/s (default 30)")
     p.add_argument("--max-frames", type=positive_int, default=120,
-                   help="cap on frames per video (a longer insertion is filmed at a lower frame rate)")
-    p.add_argument("--size", type=_size, default=(640, 480), help="frame size WIDTHxHEIGHT, px")
-    p.add_argument("--nuisance", type=float, default=0.3, help="nuisance strength, 0 (clean) to 1 (heavy)")
+                   help="cap on frames per video (a longer insertion is filmed at a lower frame rate; default 120)")
+    p.add_argument("--size", type=_size, default=(640, 480), help="frame size WIDTHxHEIGHT, px (default 640x480)")
+    p.add_argument("--nuisance", type=float, default=0.3,
+                   help="nuisance strength, 0 (clean) to 1 (heavy); default 0.3")
     p.add_argument("--png", action="store_true", help="write PNG folders instead of mp4 videos")
-    hidden = p.add_argument_group("hidden effect (SPEC §5; written to truth/effect.json only)")
+    hidden = p.add_argument_group("hidden effect (docs/diagnosis.md; written to truth/effect.json only)")
     hidden.add_argument("--effect", default="none", metavar="NAME",
                         help="none (default), hydrodynamic_lift, viscous_drag, capstan, sensor_lag, sensor_drift "
                              "or pressure_profile")
@@ -368,7 +371,7 @@ def _run_render(args: argparse.Namespace) -> int:
 
 
 def _configure_run(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--manifest", required=True, metavar="M", help="manifest CSV (SPEC §6)")
+    p.add_argument("--manifest", required=True, metavar="M", help="manifest CSV (docs/file-formats.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (report.html and every table)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="processes for the extraction (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -377,7 +380,8 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
                    help="frame rate (frames/s) for videos whose manifest row gives none (folders of frames)")
     p.add_argument("--scenario", default="S4", metavar="S",
                    help="scenario simulated for the force-vs-theta_con overlay (S1..S4, default S4; 'none': no overlay)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fit's random starts and the diagnosis' bootstrap")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the fit's random starts and the diagnosis' bootstrap (default 0)")
     p.add_argument("--bootstrap", type=positive_int, default=1000, metavar="B",
                    help="bootstrap resamples of trials in the diagnosis (default 1000)")
     p.add_argument("--overwrite", action="store_true", help="redo every stage (default: reuse up-to-date outputs)")
@@ -433,7 +437,8 @@ def _run_run(args: argparse.Namespace) -> int:
 
 def _configure_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic experiment, the fit and the diagnosis")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the synthetic experiment, the fit and the diagnosis (default 0)")
     p.add_argument("--workers", type=positive_int, default=2, help="processes for the extraction (default 2)")
     p.add_argument("--overwrite", action="store_true", help="redo every stage of the run (the rendering is kept)")
 
@@ -470,7 +475,7 @@ from pipeline import diagnosis_cli as _diagnosis_cli  # noqa: E402  (cheap: argp
 
 # --------------------------------------------------------------------------- registry
 
-#: The subcommands, by name (SPEC §7).
+#: The subcommands, by name.
 COMMANDS: dict[str, Command] = {
     "run": Command(
         "all of it, and a report",
@@ -487,19 +492,20 @@ COMMANDS: dict[str, Command] = {
         "renders a small experiment and runs everything on it",
         _configure_demo,
         _run_demo,
-        "Render 3 speeds x 2 trials of short synthetic insertion videos with force logs and exact truth, run "
-        "'tympani run' on them (extract, sync, fit, bounds, diagnose, report.html) and compare the angles with the "
-        "truth. The force falls with speed as in the seed paper's experiments (-24 % at 3 mm/s, -43 % at 7.5 mm/s) "
-        "through an effect hidden from the analysis; the demo prints the measured drops beside the paper's. A rerun "
-        "reuses what is already there.",
+        "Render 3 speeds x 5 trials of short (60-frame, 640x480) synthetic insertion videos with force logs and "
+        "exact truth, run 'tympani run' on them (extract, sync, fit, bounds, diagnose, report.html) and compare the "
+        "angles with the truth. The force falls with speed as in the seed paper's experiments (-24 % at 3 mm/s, "
+        "-43 % at 7.5 mm/s) through an effect hidden from the analysis; the demo prints the measured drops beside "
+        "the paper's. A rerun reuses what is already there.",
     ),
     "render": Command(
         "a synthetic experiment: videos, force logs, manifest, ground truth",
         _configure_render,
         _run_render,
         "Render synthetic insertion videos (one camera set-up, --trials repeats per speed) with force logs from "
-        "the SPEC §4 model, a SPEC manifest and the exact per-frame truth (truth/<trial>.csv, truth/pose.json). "
-        "--effect hides an unmodelled effect (SPEC §5, generated with forms unlike the diagnosis library's) in the "
+        "the seed paper's insertion-force model (docs/paper.md), a manifest and the exact per-frame truth "
+        "(truth/<trial>.csv, truth/pose.json). --effect hides an unmodelled effect (one of those the diagnosis "
+        "looks for, docs/diagnosis.md, generated with forms unlike the diagnosis library's) in the "
         "force logs and records it in truth/effect.json; --no-video writes angles tables instead of videos.",
     ),
     "extract": Command(
@@ -551,7 +557,8 @@ def build_parser() -> argparse.ArgumentParser:
     except PackageNotFoundError:
         tool_version = "0+unknown"
     parser = _Parser(prog="tympani", description="Contact angles and forces of cochlear-implant insertions "
-                                                 "into planar phantoms (see SPEC.md).")
+                                                 "into planar phantoms. Every command has its own --help; "
+                                                 "docs/commands.md in the source tree describes them all.")
     parser.add_argument("--version", action="version", version=f"tympani {tool_version}")
     parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
     common = argparse.ArgumentParser(add_help=False)

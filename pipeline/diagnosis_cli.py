@@ -23,13 +23,14 @@ __all__ = [
 
 DIAGNOSE_HELP = "the sim-to-real diagnosis"
 DIAGNOSE_DESCRIPTION = (
-    "Diagnose the gap between a synced table and the SPEC §4 model: is there a gap (lack of fit against the scatter "
-    "between repeats), where (speed x theta_con x insertion phase), which SPEC §5 effect explains it (base, a control "
-    "that re-identifies the friction law, and base + each effect, fitted on all speeds but one and scored on the one "
-    "held out, with a bootstrap over trials), and how much (held-out RMSE before/after, share of the peak-force "
-    "drop). Writes diagnosis.json (SPEC §6), diagnosis.md with figures and diagnosis_rows.csv to --out. Needs at "
+    "Diagnose the gap between a synced table and the seed paper's insertion-force model: is there a gap (lack of "
+    "fit against the scatter between repeats), where (speed x theta_con x insertion phase), which unmodelled effect "
+    "(hydrodynamic_lift, viscous_drag, capstan, sensor_lag, sensor_drift, pressure_profile) explains it (base, a "
+    "control that re-identifies the friction law, and base + each effect, fitted on all speeds but one and scored "
+    "on the one held out, with a bootstrap over trials), and how much (held-out RMSE before/after, share of the "
+    "peak-force drop). Writes diagnosis.json, diagnosis.md with figures and diagnosis_rows.csv to --out. Needs at "
     "least 3 speeds with at least 2 trials each. Verdicts: identified, ambiguous (with the experiment that would "
-    "split the tied effects), no_gap."
+    "split the tied effects), no_gap. docs/diagnosis.md says how it decides."
 )
 EVALUATE_HELP = "blind trials of the diagnosis on generated data with hidden effects"
 EVALUATE_DESCRIPTION = (
@@ -45,7 +46,7 @@ EVALUATE_DESCRIPTION = (
 
 def configure_diagnose(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani diagnose``."""
-    p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, SPEC §6)")
+    p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, from 'tympani sync'; docs/file-formats.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and the random starts (default 0)")
     p.add_argument("--bootstrap", type=positive_int, default=1000, metavar="B",

@@ -2,7 +2,7 @@
 
 :func:`write_diagnosis` writes, in the output folder::
 
-    diagnosis.json              SPEC §6 keys + extras (pipeline.diagnosis.diagnosis_to_json)
+    diagnosis.json              verdict, effect, ranking, gap, ... (pipeline.diagnosis.diagnosis_to_json)
     diagnosis.md                the report in words, tables and figures
     diagnosis_rows.csv          the subsampled rows with the base, control and leading effect's
                                 held-out and in-sample predictions (g)
@@ -159,14 +159,15 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
     from .diagnosis import kernel
 
     lines += ["## Candidate forms", "", "| candidate | form |", "|---|---|",
-              "| base | SPEC §4 with the nominal friction law, pressures linear in theta_con, a per-trial gain (mean per "
-              "speed within ±2 sd/sqrt(n) of 1) |", "| control | base with the Stribeck law re-identified (mu_s, mu_k, v_s) |"]
+              "| base | the paper's force model (Eqs. 2-7) with the nominal friction law, pressures linear in "
+              "theta_con, a per-trial gain (mean per speed within ±2 sd/sqrt(n) of 1) |",
+              "| control | base with the Stribeck law re-identified (mu_s, mu_k, v_s) |"]
     lines += [f"| {e} | {kernel(e).form} |" for e in diag.identifiability]
     lines.append("")
     lines += ["## Method", "",
-              "Candidates: base (SPEC §4 with the nominal friction law, pressures identified), control (friction law "
-              "re-identified), base + each SPEC §5 effect in the forms above (the library's, generalised where noted); "
-              "each with a per-trial gain on the "
+              "Candidates: base (the paper's force model with the nominal friction law, pressures identified), "
+              "control (friction law re-identified), base + each unmodelled effect in the forms above (the "
+              "library's, generalised where noted); each with a per-trial gain on the "
               "contact force (mean per speed within ±2 sd/sqrt(n) of 1). Fitted by variable projection on "
               f"{diag.config.rows_per_trial} rows per trial. Decision thresholds: effect must remove more than "
               f"{100 * diag.config.min_gain:.0f} % of the held-out MSE of base and control, the runner-up must miss more "

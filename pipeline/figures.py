@@ -32,8 +32,8 @@ from pipeline.bounds import SpeedFit, bands, form_label  # noqa: E402
 
 __all__ = ["Simulated", "simulated_table", "plot_force_vs_theta_con", "plot_log_force", "plot_bounds", "write_figures"]
 
-#: Simulated forces: a SPEC §6 simulation table (``speed_mm_s``, ``theta_con`` rad, ``force_g``
-#: g), or a callable ``speeds_mm_s -> such a table`` (e.g.
+#: Simulated forces: a simulation table as ``tympani simulate --out`` writes it (``speed_mm_s``,
+#: ``theta_con`` rad, ``force_g`` g), or a callable ``speeds_mm_s -> such a table`` (e.g.
 #: ``lambda v: pipeline.friction.simulate("S4", v)``).
 Simulated = Union[pd.DataFrame, Callable[[Sequence[float]], pd.DataFrame], None]
 

@@ -176,7 +176,7 @@ def _option_record(option) -> dict:
 
 def configure_fit(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani fit``."""
-    p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, SPEC §6)")
+    p.add_argument("synced", metavar="SYNCED", help="synced table (CSV, from 'tympani sync'; docs/file-formats.md)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (fit.json and companions)")
     p.add_argument("--free", type=_name_list, default=None, metavar="NAME,..",
                    help="parameters to fit (default p_tip0_MPa,p_tip1_MPa_per_rad,p_bot0_MPa,p_bot1_MPa_per_rad,"

@@ -231,7 +231,7 @@ def _summary(data: dict) -> str:
               f"{synced['rows_with_angles']} with angles" if synced else "no synced table")]
     diag = data["diagnosis"]
     verdict = diag["verdict"] + (f": {diag['effect']}" if diag.get("effect") else "") if diag else "not made"
-    cards.append(("diagnosis", verdict, "SPEC §5 effect"))
+    cards.append(("diagnosis", verdict, "unmodelled effect"))
     body = "".join(f'<div class="card"><span>{_e(t)}</span><b>{_e(v)}</b><small>{_e(s)}</small></div>'
                    for t, v, s in cards)
     errors = data["run"].get("errors") or []
@@ -281,7 +281,7 @@ def _paper_figures(data: dict) -> str:
 
 def _fit(data: dict) -> str:
     fit = data["fit"]
-    head = '<section id="fit"><h2>Friction model fit (SPEC §4)</h2>'
+    head = '<section id="fit"><h2>Friction model fit (Eqs. 2–7 of the seed paper)</h2>'
     if not fit:
         return head + _status_note(data["run"].get("stages", {}).get("fit"), "fit") + "</section>"
     rows = []
@@ -348,7 +348,7 @@ def _bounds(data: dict) -> str:
 
 def _diagnosis(data: dict) -> str:
     d = data["diagnosis"]
-    head = '<section id="diagnosis"><h2>Sim-to-real diagnosis (SPEC §5)</h2>'
+    head = '<section id="diagnosis"><h2>Sim-to-real diagnosis: unmodelled effects</h2>'
     if not d:
         return head + _status_note(data["run"].get("stages", {}).get("diagnose"), "diagnosis") + "</section>"
     parts = [head]

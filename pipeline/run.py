@@ -1,14 +1,14 @@
 """``tympani run``: extract → sync → fit → bounds → diagnose → one report.
 
 :func:`run_pipeline` chains the stage functions of the other modules on one manifest and writes,
-in the output folder::
+in the output folder (columns and keys: ``docs/file-formats.md``)::
 
-    angles/<trial>.angles.csv    angles tables (SPEC §6), registration and provenance JSON
+    angles/<trial>.angles.csv    angles tables, registration and provenance JSON
     angles/extract_summary.csv   one row a video: status, frames, measured frames, error
-    synced.csv                   the synced table (SPEC §6); synced.sync.json: offsets, warnings
-    fit/fit.json                 friction-model parameters ± s.e. (SPEC §6), residuals, provenance
-    bounds/bounds.json           Eq. (8) per speed (SPEC §6), bounds_bands.csv, the paper's figures
-    diagnosis/diagnosis.json     the sim-to-real diagnosis (SPEC §6), diagnosis.md, its figures
+    synced.csv                   the synced table; synced.sync.json: offsets, warnings
+    fit/fit.json                 friction-model parameters ± s.e., residuals, provenance
+    bounds/bounds.json           Eq. (8) per speed, bounds_bands.csv, the paper's figures
+    diagnosis/diagnosis.json     the sim-to-real diagnosis, diagnosis.md, its figures
     trials.csv                   one row a manifest trial: what each stage made of it
     run.json                     stages (status, seconds, message), errors, provenance
     report.html                  the self-contained report (pipeline.report)
@@ -98,7 +98,7 @@ class RunConfig:
     fps : float or None
         Frame rate (frames/s) for videos whose manifest row gives none (folders of frames).
     log_format : str or None
-        Log format file (SPEC §6) for the manifest rows whose ``format`` cell is blank.
+        Log format file (:mod:`pipeline.logformat`) for the manifest rows whose ``format`` cell is blank.
     """
 
     workers: int = 1
@@ -490,7 +490,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     Parameters
     ----------
     manifest : str or PathLike
-        Manifest CSV (SPEC §6).
+        Manifest CSV (:func:`pipeline.batch.read_manifest`).
     out_dir : str or PathLike
         Output folder (created).
     cfg : RunConfig

@@ -26,7 +26,7 @@ __all__ = [
 
 SYNC_HELP = "the synced table"
 SYNC_DESCRIPTION = (
-    "Put every manifest trial's angles table and force log on one clock and write the SPEC §6 synced table "
+    "Put every manifest trial's angles table and force log on one clock and write the synced table "
     "(trial, speed_mm_s, time_s, force_g, theta_tip, theta_bot, theta_con, plus depth_mm, video_time_s, "
     "saturated, sync_offset_s, sync_uncertainty_s) to --out, and a report (offset, uncertainty, method, "
     "force-log cleaning, warnings per trial) to <stem>.sync.json beside it. The offset is the manifest's "
@@ -58,7 +58,7 @@ BOUNDS_DESCRIPTION = (
 
 def configure_sync(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani sync``."""
-    p.add_argument("--manifest", required=True, metavar="M", help="manifest CSV (SPEC §6)")
+    p.add_argument("--manifest", required=True, metavar="M", help="manifest CSV (docs/file-formats.md)")
     p.add_argument("--out", required=True, metavar="FILE", help="synced table to write (CSV)")
     p.add_argument("--angles-dir", metavar="DIR",
                    help="folder of <trial>.angles.csv for trials without an angles column (default: the manifest's folder)")
