@@ -163,10 +163,14 @@ def test_paper_case_says_how_to_split_lift_from_lag(paper):
 
 
 def test_paper_sized_lag_is_not_called_lift():
+    """A paper-sized sensor lag (pole 0.15 s, dead time 0.03 s) without a dwell or a log before
+    the motion: nothing in the data separates it from a squeezing film, so the answer is
+    ambiguous, the lag first and the lift tied with it, never lift alone (measured: ambiguous,
+    tied sensor_lag and hydrodynamic_lift; noiseless gap 2.3 x the noise)."""
     synced, _ = _data("sensor_lag", 5, effect_params=dict(pole_time_s=0.15, dead_time_s=0.03), dwell_s=0.0, pre_s=0.0)
     d = diagnose(synced, FAST)
-    assert d.effect != "hydrodynamic_lift"
-    assert d.verdict == "identified" and d.effect == "sensor_lag" or "sensor_lag" in d.decision["tied"]
+    assert d.verdict == "ambiguous" and d.effect is None
+    assert d.decision["tied"][:2] == ["sensor_lag", "hydrodynamic_lift"] and d.decision["leader"] == "sensor_lag"
 
 
 # --------------------------------------------------------------------------- kernels vs library
@@ -239,12 +243,14 @@ def test_fit_recovers_a_library_lag(prepared):
 
 
 def test_diagnosis_json_has_the_spec_keys(strong):
+    """The SPEC keys of diagnosis.json, on the strong lag (its verdict: ambiguous between the lag
+    and a squeezing film, see :func:`test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment`)."""
     _, d = strong["sensor_lag"]
     out = diagnosis_to_json(d, "x.csv")
     json.dumps(out, allow_nan=False)
     assert list(out)[:4] == ["verdict", "effect", "ranking", "gap"] and "heldout" in out
     assert out["where"] == out["gap"]["where"] and out["by_speed"] == out["gap"]["by_speed"]  # both SPEC readings
-    assert out["verdict"] in ("identified", "ambiguous", "no_gap")
+    assert out["verdict"] == "ambiguous" and out["effect"] is None
     for row in out["ranking"]:
         assert {"effect", "delta_bic", "heldout_rmse_g", "params"} <= set(row)
     assert {"rmse_base_g", "rmse_with_effect_g", "shrink_pct", "by_speed", "where"} <= set(out["gap"])
@@ -280,13 +286,16 @@ def test_bad_input_says_what_the_diagnosis_needs(case):
 
 
 def test_cli_diagnose_writes_the_report_and_exit_codes(tmp_path, capsys):
+    """``tympani diagnose`` on a hidden viscous drag (3 speeds x 4 trials) finds it (measured:
+    identified viscous_drag, held-out RMSE 0.422 g -> 0.036 g, +91 %), writes the report and
+    figures; bad input exits 2 with one line."""
     synced, _ = _data("viscous_drag", 21, strength=1.5, speeds_mm_s=(0.5, 3.0, 7.5), trials=4)
     path = tmp_path / "synced.csv"
     synced.to_csv(path, index=False)
     out = tmp_path / "diag"
     assert main(["diagnose", str(path), "--out", str(out), "--bootstrap", "200"]) == 0
     doc = json.loads((out / "diagnosis.json").read_text())
-    assert doc["verdict"] in ("identified", "ambiguous", "no_gap")
+    assert doc["verdict"] == "identified" and doc["effect"] == "viscous_drag"
     assert (out / "diagnosis.md").read_text().startswith("# Sim-to-real gap diagnosis")
     for fig in ("fig_gap_heatmap.png", "fig_force_vs_theta.png", "fig_ranking.png", "fig_phase.png"):
         assert (out / fig).stat().st_size > 1000

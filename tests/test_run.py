@@ -52,6 +52,9 @@ def test_samples_manifest_is_relative_and_complete():
 
 
 def test_run_on_samples_writes_every_output_and_the_report(samples_run):
+    """Every output of ``tympani run`` on the samples, and the diagnosis the samples decide: they
+    follow the SPEC model with no hidden effect (measured: no_gap; held-out RMSE 0.0938 g, the
+    best effect 0.0929 g, +1 %)."""
     status, out = samples_run
     assert status == 0
     for rel in ["synced.csv", "synced.sync.json", "fit/fit.json", "bounds/bounds.json", "bounds/bounds_bands.csv",
@@ -64,7 +67,7 @@ def test_run_on_samples_writes_every_output_and_the_report(samples_run):
     fit = json.loads((out / "fit" / "fit.json").read_text())
     assert all("stderr" in p for p in fit["params"].values())
     diag = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
-    assert diag["verdict"] in ("identified", "ambiguous", "no_gap")
+    assert diag["verdict"] == "no_gap" and diag["effect"] is None  # the samples hide no effect
     trials = pd.read_csv(out / "trials.csv")
     assert (trials["sync"] == "ok").all() and (trials["frames_ok"] / trials["frames"] > 0.9).all()
     run = _run_json(out)
