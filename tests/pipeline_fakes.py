@@ -87,7 +87,7 @@ def fake_register(gray_frames, phantom, cfg=None):
     if _blocked(g):
         raise FakeRegistrationError("too little of the phantom in view")
     bumped = g[:8, :8].mean() > 200
-    pose = CameraPose(g.shape[1] / 2 + (5.0 if bumped else 0.0), g.shape[0] / 2, 0.0, 4.0, False)
+    pose = CameraPose(g.shape[1] / 2 + (5.0 if bumped else 0.0), g.shape[0] / 2, 0.0, 4.0, mirrored=False)
     return FakeRegistration(pose, 0.5, len(gray_frames))
 
 

@@ -11,6 +11,9 @@ from pipeline.cli import main
 
 
 def test_demo_tells_the_papers_story(tmp_path, capsys):
+    """Measured: peak force -22.7 % at 3 mm/s and -40.4 % at 7.5 mm/s; lift identified with a
+    held-out shrinkage of 62 %; the trials' median |error| (median over the 15 trials) 0.00088 rad
+    for theta_tip and 0.0096 rad for theta_bot."""
     out = tmp_path / "demo"
     assert main(["demo", "-q", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -33,12 +36,12 @@ def test_demo_tells_the_papers_story(tmp_path, capsys):
     assert truth["effect"] == "hydrodynamic_lift"
     diag = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
     assert diag["verdict"] == "identified" and diag["effect"] == "hydrodynamic_lift"
-    assert diag["gap"]["shrink_pct"] > 50  # measured 68 %
+    assert diag["gap"]["shrink_pct"] > 50  # measured 62 %
     bounds = json.loads((out / "bounds" / "bounds.json").read_text())
     assert all(0.92 <= r["heldout_coverage"] <= 0.98 for r in bounds["by_speed"])
     stages = json.loads((out / "run.json").read_text())["stages"]
     assert all(stages[s]["status"] == "ok" for s in ("extract", "sync", "fit", "bounds", "diagnose"))
-    # the angles agree with the renderer's truth (measured: tip 0.0009, bot 0.0088 rad pooled medians)
+    # the angles agree with the renderer's truth (measured: tip 0.00088, bot 0.0096 rad)
     err = angle_errors(out / "angles", out / "truth")
     assert len(err) == 15 and (err.measured > 0.95).all()
-    assert err.tip_median.median() <= 0.002 and err.bot_median.median() <= 0.025
+    assert err.tip_median.median() <= 0.002 and err.bot_median.median() <= 0.02

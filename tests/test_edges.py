@@ -113,10 +113,12 @@ def test_blank_and_smoothly_shaded_frames_have_no_edges():
 
 
 def test_noise_alone_gives_few_long_edges():
+    """White noise (sd 10 grey levels) leaves few edges of 10 px or more (measured: 0.22 % of the
+    pixels)."""
     rng = np.random.default_rng(1)
     noise = np.clip(rng.normal(128, 10, (H, W)), 0, 255).astype(np.uint8)
     em = detect_edges(noise, sigma_px=auto_sigma(noise), min_length_px=10)
-    assert em.mask.mean() < 0.01
+    assert em.mask.mean() < 0.005
 
 
 def test_explicit_thresholds_are_used():

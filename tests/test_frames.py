@@ -299,7 +299,7 @@ def test_undistortion_inverts_the_lens():
 
 def test_distort_points_is_where_the_lens_records_a_point():
     """A small bright dot drawn at ideal points shows up, through vision.rendering.distort, at
-    LensCalibration.distort_points of them (to a tenth of a pixel); the identity lens leaves
+    LensCalibration.distort_points of them (measured: within 0.011 px); the identity lens leaves
     points where they are."""
     from vision.rendering import distort
 
@@ -314,7 +314,7 @@ def test_distort_points_is_where_the_lens_records_a_point():
         ys, xs = np.mgrid[0:300, 0:400]
         w = np.clip(seen - 0.2 * seen.max(), 0.0, None)
         found = np.array([(w * xs).sum(), (w * ys).sum()]) / w.sum()
-        assert np.hypot(*(found - q)) < 0.1, (p, q, found)
+        assert np.hypot(*(found - q)) < 0.025, (p, q, found)
     assert np.linalg.norm(expected[0] - ideal_pts[0]) > 5.0  # the corner moves: the test has teeth
     plain = LensCalibration(cal.camera_matrix, (0.0,) * 5, (400, 300))
     assert np.allclose(plain.distort_points(ideal_pts), ideal_pts, atol=1e-9)

@@ -48,15 +48,15 @@ def white_fit():
 
 
 def test_ci95_linear_log_and_beyond_exp_range():
-    assert _ci95(2.0, 0.5, False) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
-    lo, hi = _ci95(2.0, 0.5, True)
+    assert _ci95(2.0, 0.5, log_scale=False) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
+    lo, hi = _ci95(2.0, 0.5, log_scale=True)
     assert (lo, hi) == pytest.approx((2.0 * math.exp(-0.98), 2.0 * math.exp(0.98)))
     # a barely constrained log-scale parameter (seen on the committed samples: log-se ~724)
-    assert _ci95(0.9, 724.0, True) == (0.0, math.inf)
+    assert _ci95(0.9, 724.0, log_scale=True) == (0.0, math.inf)
     # cut to the bounds the fit cannot leave (the samples' mu_s: 0.16 +- 64)
-    assert _ci95(0.16, 33.0, False, (0.0, 1.5)) == (0.0, 1.5)
-    assert _ci95(0.9, 724.0, True, (0.01, 100.0)) == (0.01, 100.0)
-    assert _ci95(2.0, 0.5, False, (0.0, 10.0)) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
+    assert _ci95(0.16, 33.0, log_scale=False, bounds=(0.0, 1.5)) == (0.0, 1.5)
+    assert _ci95(0.9, 724.0, log_scale=True, bounds=(0.01, 100.0)) == (0.01, 100.0)
+    assert _ci95(2.0, 0.5, log_scale=False, bounds=(0.0, 10.0)) == pytest.approx((2.0 - 0.98, 2.0 + 0.98))
 
 
 def test_recovers_parameters_within_three_standard_errors(white_fit):
@@ -131,14 +131,14 @@ def test_analytic_jacobian_matches_finite_differences(mode):
     base = flat_params(FrictionParams(v_s_mm_s=2.0, delta_s=1.5, mu_v_s_per_mm=0.01))
     names = list(FLAT_NAMES)
     x = np.array([base[n] for n in names])
-    jac = _model_jacobian(_build(x, names, base, False), names, arcs, speed, mode, False)
+    jac = _model_jacobian(_build(x, names, base, tie_mu=False), names, arcs, speed, mode, tie_mu=False)
     for i, name in enumerate(names):
         h = 1e-6 * max(abs(x[i]), 1e-4)
         up, down = x.copy(), x.copy()
         up[i] += h
         down[i] -= h
-        fd = (force_from_integrals(arcs, speed, _build(up, names, base, False), friction_mode=mode)
-              - force_from_integrals(arcs, speed, _build(down, names, base, False), friction_mode=mode)) / (2 * h)
+        fd = (force_from_integrals(arcs, speed, _build(up, names, base, tie_mu=False), friction_mode=mode)
+              - force_from_integrals(arcs, speed, _build(down, names, base, tie_mu=False), friction_mode=mode)) / (2 * h)
         np.testing.assert_allclose(jac[:, i], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max(), err_msg=name)
 
 

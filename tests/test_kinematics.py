@@ -29,14 +29,14 @@ def _insertion(rng: np.random.Generator, n: int = 120) -> tuple[np.ndarray, np.n
 @pytest.mark.parametrize("seed", range(6))
 def test_clean_insertions_keep_every_frame_and_give_the_speed(seed: int) -> None:
     """Ramps with plateaus before and after, noise 0.04 mm: nothing is marked, the speed is
-    found within 2 %."""
+    found (measured: within 0.10 % over the six seeds; the line within 0.14 mm of every frame)."""
     rng = np.random.default_rng(seed)
     t, d, (lo, speed, *_ ) = _insertion(rng)
     rows = _rows(t, d)
     runs, note = flag_kinematics(rows)
     assert runs == [] and note == "" and all(r["ok"] for r in rows)
     fit = fit_insertion(t, d)
-    assert abs(fit.speed_mm_s / speed - 1) < 0.02
+    assert abs(fit.speed_mm_s / speed - 1) < 0.002
     assert np.abs(insertion_depth(fit, t) - d).max() < 0.2
 
 

@@ -92,6 +92,8 @@ def test_synced_force_equals_the_raw_log_after_unit_sign_and_gain(lab, name):
 
 @pytest.mark.parametrize("name", list(TRIALS))
 def test_depth_matches_the_stage_log(lab, name):
+    """The synced depth is the stage log's, on the force clock (measured: at most 2e-7 mm from the
+    stage log, 0.0011 mm from the true motion)."""
     folder, synced, info = lab
     trial = TRIALS[name]
     rows = synced[synced["trial"] == name]
@@ -100,8 +102,8 @@ def test_depth_matches_the_stage_log(lab, name):
     have = np.isfinite(rows["depth_mm"].to_numpy(float))
     assert have.mean() > 0.99
     expected = np.interp(t[have], t_stage, d_stage)
-    assert np.max(np.abs(rows["depth_mm"].to_numpy(float)[have] - expected)) < 0.1
-    assert np.max(np.abs(rows["depth_mm"].to_numpy(float)[have] - depth_at(t[have], trial))) < 0.1
+    assert np.max(np.abs(rows["depth_mm"].to_numpy(float)[have] - expected)) < 1e-6
+    assert np.max(np.abs(rows["depth_mm"].to_numpy(float)[have] - depth_at(t[have], trial))) < 0.0025
     motion = info[name]["depth"]["motion"]
     assert motion["start_s"] == pytest.approx(trial.rest_before_s, abs=0.02)
     assert motion["stopped"] and motion["stop_s"] == pytest.approx(trial.rest_before_s + trial.motion_s, abs=0.02)
@@ -112,6 +114,8 @@ def test_depth_matches_the_stage_log(lab, name):
 
 @pytest.mark.parametrize("name", list(TRIALS))
 def test_tip_angle_at_a_depth_matches_the_tracker(lab, name):
+    """The synced tip angle is the tracker's at the same moment (measured: at most 0.0081 rad from
+    the angle of the depth, 0.0035 rad from the tracker's own record)."""
     folder, synced, _ = lab
     trial = TRIALS[name]
     rows = synced[synced["trial"] == name]
@@ -119,12 +123,12 @@ def test_tip_angle_at_a_depth_matches_the_tracker(lab, name):
     depth = rows["depth_mm"].to_numpy(float)
     have = np.isfinite(tip) & np.isfinite(depth) & (depth > 0.5)
     assert have.sum() > 100
-    assert np.max(np.abs(tip[have] - tip_of_depth(depth[have]))) < 0.1
+    assert np.max(np.abs(tip[have] - tip_of_depth(depth[have]))) < 0.016
     track = pd.read_csv(folder / f"{name}_angles.csv")  # the tracker at the same moment, on its own clock
     t_track = rows["time_s"].to_numpy(float)[have] - trial.rest_before_s
     inside = (t_track >= track["time"].iloc[0]) & (t_track <= track["time"].iloc[-1])
     at_tracker = np.radians(np.interp(t_track[inside], track["time"], track["angle"]))
-    assert np.max(np.abs(tip[have][inside] - at_tracker)) < 0.1
+    assert np.max(np.abs(tip[have][inside] - at_tracker)) < 0.007
     assert np.nanmax(tip) > 2 * np.pi  # a 3-D phantom's tip angles pass 2π and are kept
     assert rows["theta_bot"].isna().all() and rows["theta_con"].isna().all()  # a tip-only track
 
@@ -162,6 +166,8 @@ def test_epoch_stamps_stay_exact_until_made_relative():
 
 
 def test_sync_with_the_format_option_and_the_report(tmp_path, capsys):
+    """``--format`` applies a log format to every manifest row and the report records it (measured:
+    the stage's start found to 0.0012 s)."""
     rng = np.random.default_rng(3)
     trials = {"r1": LabTrial(), "r2": LabTrial(rest_before_s=4.0, depth_mm=23.0)}
     manifest = write_lab_experiment(tmp_path, trials, rng)  # no format column: --format for every row
@@ -175,7 +181,7 @@ def test_sync_with_the_format_option_and_the_report(tmp_path, capsys):
     assert report["log_format"] == str((tmp_path / "lab.toml").resolve())
     r1 = report["trials"][0]
     assert r1["format_path"] == str(tmp_path / "lab.toml") and r1["clock_origin"] == f"{LabTrial().epoch_ns} ns"
-    assert r1["depth"]["motion"]["start_uncertainty_s"] < 0.01
+    assert r1["depth"]["motion"]["start_uncertainty_s"] < 0.0025
     # without the format the same manifest is read in tympani's own form: a missing column, named
     code, out, err = _run(capsys, "sync", "--manifest", manifest, "--out", tmp_path / "t.csv")
     lines = _err_lines(err)
@@ -183,7 +189,8 @@ def test_sync_with_the_format_option_and_the_report(tmp_path, capsys):
 
 
 def test_zero_log_and_zero_seconds(tmp_path, capsys):
-    """A track on the force log's own clock (epoch stamps) and one whose zero is given in seconds."""
+    """A track on the force log's own clock (epoch stamps) and one whose zero is given in seconds
+    (measured: theta_tip at most 0.0069 rad from the truth)."""
     rng = np.random.default_rng(5)
     trial = LabTrial(rest_before_s=2.0, depth_mm=15.0)
     paths = write_lab_trial(tmp_path, "z", trial, rng)
@@ -203,7 +210,7 @@ def test_zero_log_and_zero_seconds(tmp_path, capsys):
     for name in ("A", "B"):
         rows = s[(s["trial"] == name) & s["theta_tip"].notna()]
         truth = tip_of_depth(depth_at(rows["time_s"], trial))
-        assert np.max(np.abs(rows["theta_tip"] - truth)) < 0.05, name
+        assert np.max(np.abs(rows["theta_tip"] - truth)) < 0.014, name
     assert s.loc[s["trial"] == "B", "depth_mm"].isna().all()  # no depth log for B
 
 

@@ -84,7 +84,7 @@ def _clean_scene(pose, style="both"):
 
 
 def test_frame_shows_the_array_dark_with_bright_bands():
-    pose = CameraPose(330.0, 250.0, 0.4, 30.0, False)
+    pose = CameraPose(330.0, 250.0, 0.4, 30.0, mirrored=False)
     st = array_centreline(4.0, 2.6)
     img = cv2.cvtColor(_clean_scene(pose).render(st), cv2.COLOR_BGR2GRAY).astype(float)
     ap = Appearance()
@@ -98,7 +98,7 @@ def test_frame_shows_the_array_dark_with_bright_bands():
 
 @pytest.mark.parametrize("style", ["lines", "region"])
 def test_walls_appear_where_the_geometry_says(style):
-    pose = CameraPose(320.0, 240.0, -1.0, 25.0, True)
+    pose = CameraPose(320.0, 240.0, -1.0, 25.0, mirrored=True)
     img = cv2.cvtColor(_clean_scene(pose, style).render(pose_at_depth(-1.0)), cv2.COLOR_BGR2GRAY)
     edges = cv2.Canny(img, 30, 90) > 0
     dist = cv2.distanceTransform((~edges).astype(np.uint8), cv2.DIST_L2, 5)
@@ -109,11 +109,13 @@ def test_walls_appear_where_the_geometry_says(style):
 
 
 def test_mirrored_pose_renders_the_flipped_image():
+    """A mirrored pose renders the upside-down image (measured: mean |difference| 0.026 grey
+    levels)."""
     st = array_centreline(3.5, 2.5)
-    a = _clean_scene(CameraPose(320.0, 239.5, 0.0, 25.0, False)).render(st)
-    b = _clean_scene(CameraPose(320.0, 239.5, 0.0, 25.0, True)).render(st)
+    a = _clean_scene(CameraPose(320.0, 239.5, 0.0, 25.0, mirrored=False)).render(st)
+    b = _clean_scene(CameraPose(320.0, 239.5, 0.0, 25.0, mirrored=True)).render(st)
     diff = np.abs(a.astype(int) - b[::-1].astype(int))
-    assert np.mean(diff) < 1.0
+    assert np.mean(diff) < 0.05
 
 
 def test_random_pose_keeps_the_channel_in_frame():
@@ -141,7 +143,7 @@ def test_nuisances_change_the_frame_but_keep_it_valid():
 
 @pytest.mark.parametrize("target", ["video.mp4", "frames"])
 def test_render_video_writes_frames_and_truth(tmp_path, target):
-    pose = CameraPose(320.0, 240.0, 0.2, 22.0, False)
+    pose = CameraPose(320.0, 240.0, 0.2, 22.0, mirrored=False)
     spec = VideoSpec(pose=pose, fps=10.0, speed_mm_s=5.0, start_depth_mm=0.0, end_depth_mm=10.0)
     truth = render_video(tmp_path / target, spec, seed=3)
     assert len(truth) == 21
@@ -160,7 +162,7 @@ def test_render_video_writes_frames_and_truth(tmp_path, target):
 
 
 def test_capped_video_keeps_frame_times_on_the_file_clock(tmp_path):
-    pose = CameraPose(320.0, 240.0, 0.2, 22.0, False)
+    pose = CameraPose(320.0, 240.0, 0.2, 22.0, mirrored=False)
     spec = VideoSpec(pose=pose, fps=30.0, speed_mm_s=1.0, start_depth_mm=0.0, end_depth_mm=9.0, max_frames=10)
     truth = render_video(tmp_path / "v.mp4", spec)
     assert len(truth) == 10
@@ -175,8 +177,8 @@ def test_capped_video_keeps_frame_times_on_the_file_clock(tmp_path):
 
 HARSH_KINDS = dict(bubbles=5, bubble_at_tip=0.0, doubled_wall_mm=0.3, glints=1.0, plate_glints=3,
                    motion_blur_px=6.0, shadows=0.5, gripper_overlap_mm=3.0, distractors=2, jpeg_quality=18)
-ZOOM = CameraPose(300.0, 250.0, 0.5, 30.0, False)  # the spiral and the entry fill a 640x480 frame
-SIDE = CameraPose(100.0, 250.0, 0.334, 14.0, False)  # the channel and 30 mm of the axis (the gripper) in view
+ZOOM = CameraPose(300.0, 250.0, 0.5, 30.0, mirrored=False)  # the spiral and the entry fill a 640x480 frame
+SIDE = CameraPose(100.0, 250.0, 0.334, 14.0, mirrored=False)  # the channel and 30 mm of the axis (the gripper) in view
 
 
 def _grey(bgr):

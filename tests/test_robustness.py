@@ -280,7 +280,8 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
     """A barrel lens (OpenCV k1 = -0.3 at f = 520 px: straight lines bow by up to ~9 px at the
     frame's edge) bends the walls off SPEC's similarity; with --calibration the registration
     sees undistorted frames and the measurement samples where the lens put its points, and the
-    tip comes out as on an ideal camera. A calibration of another
+    tip comes out as on an ideal camera (measured |theta_tip error|: median 0.0095 rad plain,
+    0.0014 calibrated; max 0.023 and 0.040, both on frame 10). A calibration of another
     frame size fails that video alone, and a bad calibration file is a one-line error."""
     from vision.frames import LensCalibration
     from vision.geometry import CameraPose
@@ -290,7 +291,7 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
                           (400, 300))
     cal_path = tmp_path / "cal.json"
     cal_path.write_text(json.dumps(cal.to_dict()))
-    pose = CameraPose(205.0, 148.0, 0.35, 17.0, False)
+    pose = CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False)
     spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
                      end_depth_mm=16.0, nuisance=Nuisance(noise_sigma=2.0), max_frames=30)
     scene = Scene(pose, spec.width, spec.height, spec.appearance, spec.nuisance, rng=np.random.default_rng(1))
@@ -308,7 +309,7 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
         assert table["ok"].all()
         errors[name] = (table["theta_tip"] - table["theta_tip_true"]).abs()
     # measured: median 0.0095 rad plain, 0.0014 calibrated; max 0.023 and 0.040, both on frame 10
-    assert errors["calibrated"].median() < 0.004 and errors["calibrated"].median() < errors["plain"].median() / 3
+    assert errors["calibrated"].median() < 0.003 and errors["calibrated"].median() < errors["plain"].median() / 3
     assert errors["calibrated"].max() < 0.05
     # a calibration made at another size (a distortion-free 320x240 lens): the 400x300 video fails
     # with one line naming it, the 320x240 sample video beside it is extracted
@@ -340,7 +341,7 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
     from vision.rendering import Nuisance, VideoSpec, render_video
 
     wide = replace(DEFAULT_ARRAY, tip_diameter_mm=0.69, base_diameter_mm=1.38)
-    spec = VideoSpec(pose=CameraPose(205.0, 148.0, 0.35, 17.0, False), width=400, height=300, fps=10.0,
+    spec = VideoSpec(pose=CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False), width=400, height=300, fps=10.0,
                      speed_mm_s=1.0, start_depth_mm=2.0, end_depth_mm=16.0, nuisance=Nuisance(noise_sigma=2.0),
                      max_frames=30)
     video = tmp_path / "wide.mp4"
@@ -363,15 +364,19 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
         assert table["ok"].all()
         bot_error[name] = float((table["theta_bot"] - table["theta_bot_true"]).abs().median())
     assert 1.12 < ratio["modelled"] < 1.22 and 0.97 < ratio["given"] < 1.06  # measured 1.171 and 1.016
-    assert bot_error["given"] < 0.1 and bot_error["given"] < bot_error["modelled"] / 4
+    assert bot_error["given"] < 0.08 and bot_error["given"] < bot_error["modelled"] / 4
 
 
 def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
+    """The camera moves 13 px and 3.4 degrees at frame 13; the check at 15 sees it, the new
+    registration is found and frames 13-14 are measured again (measured: new pose off by 0.004
+    and 0.020 px, 0.00019 rad; after the bump |theta_tip error| median 0.0018 rad, max 0.014,
+    |theta_bot error| median 0.016 rad)."""
     from vision.geometry import CameraPose
     from vision.rendering import Nuisance, Scene, VideoSpec
 
-    before = CameraPose(205.0, 148.0, 0.35, 17.0, False)
-    after = CameraPose(216.0, 141.0, 0.41, 17.3, False)  # 13 px, 3.4 degrees, 1.8 % off
+    before = CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False)
+    after = CameraPose(216.0, 141.0, 0.41, 17.3, mirrored=False)  # 13 px, 3.4 degrees, 1.8 % off
     spec = VideoSpec(pose=before, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
                      end_depth_mm=12.0, nuisance=Nuisance(noise_sigma=2.0), max_frames=30)
     bump = 13  # between the checks at 10 and 15: frames 13-14 are first measured with the old pose
@@ -388,8 +393,8 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
     assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
     assert regs[1]["moved_at_frame"] == bump
     assert regs[1]["check_residual_px"] > regs[1]["threshold_px"]
-    assert abs(regs[1]["centre_x_px"] - after.centre_x_px) < 1.0 and abs(regs[1]["centre_y_px"] - after.centre_y_px) < 1.0
-    assert abs(regs[1]["rotation_rad"] - after.rotation_rad) < 0.01
+    assert abs(regs[1]["centre_x_px"] - after.centre_x_px) < 0.04 and abs(regs[1]["centre_y_px"] - after.centre_y_px) < 0.04
+    assert abs(regs[1]["rotation_rad"] - after.rotation_rad) < 0.0004
     prov = json.loads((out / "bumped.provenance.json").read_text())
     assert any(c["frame"] == 15 for c in prov["checks"])
     table = pd.read_csv(out / "bumped.angles.csv").merge(truth, on="frame", suffixes=("", "_true"))
@@ -399,19 +404,20 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
     assert len(ok) >= len(post) - 1
     tip_err = (ok["theta_tip"] - ok["theta_tip_true"]).abs()
     bot_err = (ok["theta_bot"] - ok["theta_bot_true"]).abs()
-    assert tip_err.median() < 0.02 and tip_err.max() < 0.06, tip_err.describe()
-    assert bot_err.median() < 0.08, bot_err.describe()
+    assert tip_err.median() < 0.004 and tip_err.max() < 0.03, tip_err.describe()
+    assert bot_err.median() < 0.035, bot_err.describe()
 
 
 def test_view_blocked_mid_way_is_not_measured_then_resumes(tmp_path, capsys):
     """Frames 13-19 show nothing (a hand over the lens); the camera did not move. The check at
     15 fails and registering there fails: those frames are not measured with a pose nobody can
     verify. The try at 21 finds the old registration fits again, and going back, 13-14 (seen
-    before the check) are marked not ok too."""
+    before the check) are marked not ok too. (Measured on the other frames: |theta_tip error|
+    at most 0.0034 rad.)"""
     from vision.geometry import CameraPose
     from vision.rendering import Nuisance, Scene, VideoSpec
 
-    pose = CameraPose(205.0, 148.0, 0.35, 17.0, False)
+    pose = CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False)
     spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
                      end_depth_mm=12.0, nuisance=Nuisance(noise_sigma=2.0), max_frames=30)
     scene = Scene(pose, spec.width, spec.height, spec.appearance, spec.nuisance, rng=np.random.default_rng(1))
@@ -433,14 +439,16 @@ def test_view_blocked_mid_way_is_not_measured_then_resumes(tmp_path, capsys):
     rest = table[~table["frame"].between(13, 20)]
     assert rest["ok"].all() and rest["reg_epoch"].eq(0).all()
     tip_err = (rest["theta_tip"] - rest["theta_tip_true"]).abs()
-    assert tip_err.max() < 0.06, tip_err.describe()
+    assert tip_err.max() < 0.007, tip_err.describe()
 
 
 def test_frame_with_the_array_hidden(tmp_path, capsys):
+    """A frame that does not show the array keeps its row, not ok, with a reason; the others are
+    measured (measured: |theta_tip error| at most 0.0036 rad)."""
     from vision.geometry import CameraPose
     from vision.rendering import Scene, VideoSpec
 
-    pose = CameraPose(200.0, 150.0, -0.6, 18.0, True)
+    pose = CameraPose(200.0, 150.0, -0.6, 18.0, mirrored=True)
     spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=3.0,
                      end_depth_mm=10.0, max_frames=12)
     scene = Scene(pose, spec.width, spec.height, spec.appearance, spec.nuisance, rng=np.random.default_rng(2))
@@ -456,7 +464,7 @@ def test_frame_with_the_array_hidden(tmp_path, capsys):
     assert np.isnan(row["theta_tip"]) and np.isnan(row["theta_bot"])
     rest = table[table["frame"] != hidden]
     assert rest["ok"].all()
-    assert (rest["theta_tip"] - rest["theta_tip_true"]).abs().max() < 0.05
+    assert (rest["theta_tip"] - rest["theta_tip_true"]).abs().max() < 0.007
 
 
 # --------------------------------------------------------------------------- force logs (sync)

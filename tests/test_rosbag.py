@@ -101,6 +101,9 @@ def write_bag(path: Path, trial: LabTrial, rng: np.random.Generator) -> Path:
 
 @pytest.mark.parametrize("suffix", [".bag", ""])
 def test_a_bag_is_synced_like_csv_logs(tmp_path, capsys, suffix):
+    """A ROS 1 bag and a ROS 2 (mcap) bag with force, depth and angle topics sync like CSV logs
+    (measured against the truth: force at most 0.063 g off (the log's noise), depth 0.006 mm,
+    theta_tip 0.0027 rad)."""
     trial = LabTrial(speed_mm_s=2.0, depth_mm=18.0, rest_before_s=1.2, rest_after_s=1.0)
     bag = write_bag(tmp_path / f"trial{suffix or '_ros2'}", trial, np.random.default_rng(4))
     (tmp_path / "bag.toml").write_text(FORMAT)
@@ -113,14 +116,14 @@ def test_a_bag_is_synced_like_csv_logs(tmp_path, capsys, suffix):
     # force: the header stamp's clock (3 ms before recording), N -> g with the sign
     assert s["time_s"].iloc[0] == 0.0 and s["time_s"].iloc[1] == pytest.approx(0.02, abs=1e-9)
     truth = force_of_tip(tip_of_depth(depth_at(s["time_s"], trial)))
-    assert np.max(np.abs(s["force_g"] - truth)) < 0.2 and s["force_g"].max() == pytest.approx(truth.max(), rel=0.03)
+    assert np.max(np.abs(s["force_g"] - truth)) < 0.13 and s["force_g"].max() == pytest.approx(truth.max(), rel=0.03)
     # depth: metres -> mm, on the bag's record time, 3 ms after the force stamps' clock
     d_truth = depth_at(s["time_s"] - 0.003, trial)
     have = s["depth_mm"].notna()
-    assert have.mean() > 0.99 and np.max(np.abs(s.loc[have, "depth_mm"] - d_truth[have])) < 0.1
+    assert have.mean() > 0.99 and np.max(np.abs(s.loc[have, "depth_mm"] - d_truth[have])) < 0.012
     # angles on the bag's clock (zero = "log")
     tip = s.dropna(subset=["theta_tip"])
-    assert np.max(np.abs(tip["theta_tip"] - tip_of_depth(depth_at(tip["time_s"] - 0.003, trial)))) < 0.05
+    assert np.max(np.abs(tip["theta_tip"] - tip_of_depth(depth_at(tip["time_s"] - 0.003, trial)))) < 0.006
     assert tip["theta_tip"].max() > 2 * np.pi
 
 

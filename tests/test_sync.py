@@ -174,6 +174,8 @@ def test_sync_manifest_estimates_blank_offsets(tmp_path):
 
 
 def test_manifest_offsets_are_used_and_checked(tmp_path):
+    """The manifest's video_t0_s is used as given and checked against the estimate, which finds
+    the true 0.5 s when asked (measured: 0.0074 s off)."""
     manifest = _experiment(tmp_path, np.random.default_rng(12), give_t0=True)
     result = sync_manifest(manifest)
     assert [t.method for t in result.trials] == ["manifest"] * 3
@@ -184,7 +186,7 @@ def test_manifest_offsets_are_used_and_checked(tmp_path):
     result = sync_manifest(manifest)
     assert any("disagrees" in w for w in result.trials[0].warnings)
     estimated = sync_manifest(manifest, cfg=SyncConfig(t0="estimate"))
-    assert abs(estimated.trials[0].offset_s - 0.5) < 0.05
+    assert abs(estimated.trials[0].offset_s - 0.5) < 0.015
 
 
 def test_bad_trials_fail_alone(tmp_path):

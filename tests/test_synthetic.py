@@ -1,10 +1,9 @@
 """Synthetic experiments with hidden effects (pipeline.synthetic): signatures, no inverse crime,
-the paper case, files that round-trip through ``tympani sync``, speed."""
+the paper case, files that round-trip through ``tympani sync``."""
 
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pandas as pd
@@ -262,6 +261,8 @@ def test_dataset_layout_noise_and_reproducibility():
 
 
 def test_written_experiment_round_trips_through_sync(tmp_path, capsys):
+    """A written experiment syncs back to the same table; resampled at 24 frames/s its contact
+    angle agrees within the angle noise (measured: |difference| max 0.026 rad, median 0.0008)."""
     synced, truth = synthetic_dataset(np.random.default_rng(2), "sensor_lag", speeds_mm_s=(1.5, 7.5), trials=2,
                                       video_t0_s=0.3)
     manifest = write_experiment(tmp_path / "exp", synced, truth)
@@ -281,18 +282,14 @@ def test_written_experiment_round_trips_through_sync(tmp_path, capsys):
     assert main(["sync", "--manifest", str(tmp_path / "exp24" / "manifest.csv"), "--out", str(out24), "-q"]) == 0
     back24 = pd.read_csv(out24)
     diff = (back24["theta_con"] - synced["theta_con"]).abs()
-    assert diff.max() < 0.05 and np.nanmedian(diff) < 0.01
+    assert diff.max() < 0.05 and np.nanmedian(diff) < 0.002
 
 
-def test_generation_is_fast():
-    synthetic_dataset(np.random.default_rng(0), "hydrodynamic_lift", trials=1)  # warm caches
-    times = []
-    for seed in range(3):
-        start = time.perf_counter()
-        synced, _ = synthetic_dataset(np.random.default_rng(seed), "hydrodynamic_lift")
-        times.append(time.perf_counter() - start)
-    assert synced["trial"].nunique() == 50
-    assert min(times) < 0.6, times  # ~0.15-0.3 s on one core
+def test_default_dataset_is_five_speeds_of_ten_trials():
+    """The default dataset: 5 speeds x 10 trials. How long it takes is a figure of ``tympani
+    bench`` (its diagnosis section), not a test."""
+    synced, _ = synthetic_dataset(np.random.default_rng(0), "hydrodynamic_lift")
+    assert synced["trial"].nunique() == 50 and synced["speed_mm_s"].nunique() == 5
 
 
 # --------------------------------------------------------------------------- command line
