@@ -136,8 +136,14 @@ def fit_insertion(time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfi
     def residual(p: np.ndarray) -> np.ndarray:
         return np.clip(p[0] + p[1] * t, p[2], p[3]) - d
 
+    def jacobian(p: np.ndarray) -> np.ndarray:
+        line = p[0] + p[1] * t
+        below, above = line < p[2], line > p[3]
+        ramp = ~(below | above)
+        return np.column_stack([ramp, ramp * t, below, above]).astype(float)
+
     p0 = np.array([d0, v, lo0, max(hi0, lo0 + 1e-6)])
-    res = least_squares(residual, p0, loss="cauchy", f_scale=scale,
+    res = least_squares(residual, p0, jac=jacobian, loss="cauchy", f_scale=scale,
                         bounds=([-np.inf, 0.0, -np.inf, -np.inf], [np.inf, np.inf, np.inf, np.inf]))
     p = res.x if res.success else p0
     lo, hi = float(min(p[2], p[3])), float(max(p[2], p[3]))
