@@ -45,7 +45,7 @@ from typing import IO, Any, Callable, Iterator, Literal, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline.io import csv_records, to_jsonable
+from pipeline.io import csv_records, data_lines, to_jsonable
 from vision.errors import InputError, one_line
 
 __all__ = [
@@ -449,13 +449,7 @@ def read_csv_columns(
 
     with _text_lines(source) as fh:
         try:
-            for lineno, line in enumerate(fh, start=1):
-                stripped = line.strip()
-                if not stripped:
-                    continue
-                if stripped[0] == "#":
-                    comments.append(stripped[1:].strip())
-                    continue
+            for lineno, line in data_lines(fh, comments):
                 if header is None:
                     names = tuple(h.strip() for h in _split_fields(line))
                     if len(set(names)) != len(names):

@@ -11,8 +11,9 @@ A write that the operating system refuses (read-only folder, permission denied, 
 raises :class:`OutputError`, an :class:`~vision.errors.InputError` that names the file the
 command could not write: the command line reports it in one line with exit status 2.
 
-The project's CSV inputs (manifests, force logs, synced tables) may carry ``#`` comment lines;
-:func:`csv_records` is the one reader that skips them and keeps every record's line number.
+The project's CSV inputs (manifests, force logs, synced tables) may carry ``#`` comment lines:
+:func:`data_lines` is the one rule that skips them (and blank lines) and keeps every line's number;
+:func:`csv_records` parses what it keeps.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ __all__ = [
     "content_hash",
     "tool_version",
     "provenance",
+    "data_lines",
     "csv_records",
     "HASH_CHUNK_BYTES",
 ]
@@ -406,12 +408,41 @@ def provenance(input_path: str | os.PathLike, params: dict, **extra: Any) -> dic
 # --------------------------------------------------------------------------- reading
 
 
+def data_lines(lines: Iterable[str], comments: list[str] | None = None) -> Iterator[tuple[int, str]]:
+    """The lines of a CSV text that are neither blank nor ``#`` comments, with their numbers.
+
+    A line is a comment when its first non-blank character is ``#``; a ``#`` anywhere else is
+    data. The lines are read one at a time (a stream of any length keeps one line in memory).
+
+    Parameters
+    ----------
+    lines : iterable of str
+        The text's lines: a file opened with ``newline=""``, or ``str.splitlines()``.
+    comments : list of str, optional
+        Receives the text of every comment line after its ``#``, stripped, as it is passed.
+
+    Yields
+    ------
+    tuple of (int, str)
+        The 1-based line number and the line as given (line ending included, if any).
+    """
+    for lineno, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            if comments is not None:
+                comments.append(stripped[1:].strip())
+            continue
+        yield lineno, line
+
+
 def csv_records(lines: Iterable[str], comments: list[str] | None = None) -> tuple[list[int], list[list[str]]]:
     """The records of a CSV text without its blank lines and ``#`` comment lines.
 
-    A line is a comment when its first non-blank character is ``#``; a ``#`` anywhere else (in a
-    field, quoted or not) is data. (pandas' ``read_csv(comment="#")`` would also cut a line at an
-    unquoted ``#`` and lose the line numbers, so it is not used.)
+    The lines kept are those of :func:`data_lines`: a ``#`` anywhere but at the start of a line
+    (in a field, quoted or not) is data. (pandas' ``read_csv(comment="#")`` would also cut a line
+    at an unquoted ``#`` and lose the line numbers, so it is not used.)
 
     Parameters
     ----------
@@ -428,14 +459,5 @@ def csv_records(lines: Iterable[str], comments: list[str] | None = None) -> tupl
         The kept lines parsed by :func:`csv.reader` (fields not stripped); one a kept line
         unless a quoted field spans lines.
     """
-    kept: list[tuple[int, str]] = []
-    for lineno, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped:
-            continue
-        if stripped.startswith("#"):
-            if comments is not None:
-                comments.append(stripped[1:].strip())
-            continue
-        kept.append((lineno, line))
+    kept = list(data_lines(lines, comments))
     return [k for k, _ in kept], list(csv.reader(line for _, line in kept))

@@ -80,7 +80,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
-from pipeline.io import atomic_write_csv, atomic_write_json, csv_records, tool_version
+from pipeline.io import atomic_write_csv, atomic_write_json, csv_records, data_lines, tool_version
 from pipeline.labstreams import read_lab_logs, track_coverage
 from pipeline.logformat import LogFormat, read_log_format
 from pipeline.motion import Motion
@@ -385,11 +385,8 @@ def read_angles_table(path: str | os.PathLike) -> pd.DataFrame:
 
 
 def _first_line(text: str) -> int:
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return lineno
-    return 1
+    """Number of the first line that is neither blank nor a comment (1 when there is none)."""
+    return next((lineno for lineno, _ in data_lines(text.splitlines())), 1)
 
 
 def frame_period(angles: pd.DataFrame) -> float:
