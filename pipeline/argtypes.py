@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["positive_int", "nonneg_int", "positive_float", "nonneg_float", "fraction", "int_list", "speed_list"]
+
+class UsageError(Exception):
+    """Bad command-line usage (argparse errors, conflicting options): exit status 2."""
+
+__all__ = ["UsageError", "positive_int", "nonneg_int", "positive_float", "nonneg_float", "fraction", "int_list", "speed_list"]
 
 
 def _int(text: str) -> int:

@@ -21,14 +21,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
-from pipeline.argtypes import diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int, speed_list
+from pipeline.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int,
+                               speed_list)
 from vision.errors import InputError, is_input_error
 
 __all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
-
-
-class UsageError(Exception):
-    """Bad command-line usage (argparse errors, conflicting options): exit status 2."""
 
 
 class _Parser(argparse.ArgumentParser):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.argtypes import positive_int
+from pipeline.argtypes import UsageError, positive_int
 
 __all__ = [
     "configure_diagnose",
@@ -92,7 +92,6 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
     from pipeline.diagnosis_eval import EvalConfig, evaluate, format_evaluation, summarise
 
-    from pipeline.cli import UsageError
     from pipeline.diagnosis_eval import FAMILIES
 
     families = [f.strip().upper() for f in str(args.family).split(",") if f.strip()]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pipeline.argtypes import positive_int, speed_list
+from pipeline.argtypes import UsageError, positive_int, speed_list
 
 __all__ = [
     "configure_simulate",
@@ -110,7 +110,6 @@ def _compact(table) -> str:
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Run ``tympani simulate``; returns the exit status."""
-    from pipeline.cli import UsageError
     from pipeline.paper import SCENARIOS, SIM_COLUMNS, simulate
 
     if args.grid is not None and args.grid < 2:
