@@ -1658,6 +1658,19 @@ _MIN_SECOND_SHOWN = 0.10
 _MIN_SECOND_MATCHED = 0.30
 # Largest parallax (mm) looked for.
 _MAX_PARALLAX_MM = 0.55
+# Least parallax (mm) reported: a fit with its copies closer is taken for one (thicker) wall
+# (render_c's and our renderer's parallax starts at 0.10 mm; single walls with a shadow or a
+# soft region step beside their lines give 0.04–0.08 mm).
+_MIN_PARALLAX_MM = 0.08
+# :func:`_copy_starts` looks for a second copy off the first's edges only when the masked
+# shift surface reaches this fraction of the unmasked one's maximum (single walls 0.07–0.46,
+# median 0.18; doubled walls whose second copy is found that way 0.21–0.86).
+_MIN_MASKED_RATIO = 0.18
+# A line's width must vary by at least this much (px) with its direction, the variation
+# explaining at least this fraction of the width's variance, for :func:`_copy_starts` to
+# try two overlapping copies.
+_MIN_WIDENING_PX = 1.5
+_MIN_WIDENING_EXPLAINED = 0.4
 # Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
 _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 
@@ -2054,6 +2067,72 @@ def _surface_peaks(
     return out
 
 
+def _line_widening(
+    pose: CameraPose, half_width: float, sfield: np.ndarray, model: WallModel, n_bins: int = 24, reach_px: float = 6.0
+) -> tuple[np.ndarray, float]:
+    """Second copy of wall lines too close to show apart, from how the lines' width varies
+    with their direction.
+
+    Two copies ``v`` (px) apart that overlap form one line widened by ``|n·v|`` where its
+    normal is ``n``, the widening showing on the outer side of each polarity class's edge; a
+    single line has the same width in every direction. The signed field is sampled along
+    each wall normal, summed over wall points of about the same normal direction
+    (``n_bins`` bins over 360°), and in each bin each class's edge is placed at its strongest
+    evidence from 3 px inside to ``reach_px`` (px) outside its expected place (``±half_width``).
+    The bins' widths ``w`` are fitted by ``w = c + A |cos(theta - phi)|`` (least squares
+    weighted by the weaker class's evidence, ``phi`` in 5° steps).
+
+    Returns
+    -------
+    shift : ndarray, shape (2,)
+        ``A (cos phi, sin phi)`` (px): the second copy's shift, up to its sign.
+    explained : float
+        Fraction of the weighted variance of the widths the ``|cos|`` term explains (0–1).
+    """
+    pts, nrm = _image_points(pose, model)
+    vis = _visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    if len(pts) < 4 * n_bins:
+        return np.zeros(2), 0.0
+    h = half_width
+    t = np.arange(-abs(h) - reach_px - 1.0, abs(h) + reach_px + 1.0 + 1e-9, 0.5)
+    prof = _profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
+    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
+    ends = []
+    for sign, evidence in ((1.0, np.maximum(proj, 0.0)), (-1.0, np.maximum(-proj, 0.0))):
+        sums = _bin_sums(evidence, bins, n_bins)
+        # outward along t for this class's edge: the side sign * sign(h) of the line
+        out = sign * (1.0 if h >= 0 else -1.0)
+        u = out * (t - sign * h)
+        window = (u >= -3.0) & (u <= reach_px)
+        best = np.argmax(np.where(window[None, :], sums, -np.inf), axis=1)
+        ends.append((u[best], sums[np.arange(n_bins), best]))
+    widths = ends[0][0] + ends[1][0]
+    weights = np.minimum(ends[0][1], ends[1][1])
+    theta = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
+    wsum = float(weights.sum())
+    if not wsum > 0:
+        return np.zeros(2), 0.0
+    mean = float(weights @ widths) / wsum
+    total = float(weights @ (widths - mean) ** 2)
+    best_fit = (0.0, 0.0, total)
+    for phi in np.radians(np.arange(0.0, 180.0, 5.0)):
+        x = np.abs(np.cos(theta - phi))
+        xm = float(weights @ x) / wsum
+        sxx = float(weights @ (x - xm) ** 2)
+        if sxx <= 0:
+            continue
+        a = float(weights @ ((x - xm) * (widths - mean))) / sxx
+        resid = total - a * a * sxx
+        if a > 0 and resid < best_fit[2]:
+            best_fit = (a, phi, resid)
+    a, phi, resid = best_fit
+    explained = 1.0 - resid / total if total > 0 else 0.0
+    return np.array([a * math.cos(phi), a * math.sin(phi)]), float(explained)
+
+
 def _copy_starts(
     pose: CameraPose,
     half_width: float,
@@ -2067,11 +2146,13 @@ def _copy_starts(
 
     Copies further apart than their edges' width: the strongest peak of
     :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
-    the surface's best peak (two best, for region boundaries) proposes the other copy.
-    Lines closer than that (one thicker line): ``pose`` with a second copy 0.12 mm away
-    (2–4 px) in three directions 60° apart; the refinement turns and stretches the shift
-    from there. (Region boundaries that close merge into one edge, which shows no second
-    copy to fit.)
+    the surface's best peak (two best, for region boundaries) proposes the other copy, unless
+    the masked surface's maximum is below :data:`_MIN_MASKED_RATIO` of the unmasked one (no
+    edges off the first copy's). Lines closer than that (one thicker line): when the line's
+    width varies with its direction (:func:`_line_widening`: at least
+    :data:`_MIN_WIDENING_PX` and :data:`_MIN_WIDENING_EXPLAINED` of the variance), the two
+    copies ``∓ shift / 2`` either side of ``pose``. (Region boundaries that close merge into
+    one edge, which shows no second copy to fit.)
     """
     lines = len(classes) == 2
     radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
@@ -2087,12 +2168,13 @@ def _copy_starts(
                 _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
             )
         masked, masked_hw, _ = _shift_surface(one, sfield, sparse, radius, classes, mask_half_width=one_hw)
-        for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 1 if lines else 2, min_shift_px=2.0):
-            starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
+        if float(masked.max()) >= _MIN_MASKED_RATIO * float(surface.max()):
+            for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 1 if lines else 2, min_shift_px=2.0):
+                starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
     if lines:
-        length = float(np.clip(0.12 * pose.px_per_mm, 2.0, 4.0))
-        for angle in (0.0, math.pi / 3.0, 2.0 * math.pi / 3.0):
-            starts.append(_Copies(pose, 0.0, (length * math.cos(angle), length * math.sin(angle))))
+        shift, explained = _line_widening(pose, half_width, sfield, sparse)
+        if math.hypot(*shift) >= _MIN_WIDENING_PX and explained >= _MIN_WIDENING_EXPLAINED:
+            starts.append(_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))))
     return starts
 
 
@@ -2113,7 +2195,8 @@ def _doubled_walls(
     it: a shift onto another turn's walls can pass the first test), the best supported
     (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
     the spiral's valley when that fits better (:func:`_valley_scan`), and its copies named
-    so that the first is the one with the stronger edges. Returns the copies and the second
+    so that the first is the one with the stronger edges; copies closer than
+    :data:`_MIN_PARALLAX_MM` are taken for single walls. Returns the copies and the second
     copy's relative contrast (:func:`_copy_contrast`).
     """
     coarse = model.subsample(4.0 / pose.px_per_mm)
@@ -2138,7 +2221,8 @@ def _doubled_walls(
         if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
             copies = turned
     support = _copy_support(copies, layers, fine, classes)
-    if not (support.second_is_real and math.hypot(*copies.shift) >= _RESOLVED_PX):
+    least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
+    if not (support.second_is_real and math.hypot(*copies.shift) >= least):
         return None
     contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
     if contrast > 1.0:
