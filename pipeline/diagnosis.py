@@ -1768,7 +1768,7 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
                   f"of the {ref}'s, lower bound {100 * gain_lo[leader]:.0f} %)")
     elif not lof_significant:
         verdict, effect, tied = "no_gap", None, []
-        reason = ("the SPEC model predicts held-out speeds within the scatter between repeats (lack-of-fit test "
+        reason = ("the paper's model predicts held-out speeds within the scatter between repeats (lack-of-fit test "
                   f"not significant), although {leader} lowers the held-out error by {100 * gain[leader]:.0f} %")
     elif len(tied) == 1 and not adequate:
         verdict, effect = "ambiguous", None
@@ -2219,7 +2219,7 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
                                     "an effect must beat it on held-out speeds",
                         heldout_rmse_g=diag.gap["rmse_control_g"], params=diag.fits["control"].params(ds.theta_hi)),
         "lack_of_fit": diag.lof,
-        "forms": {"base": "SPEC §4 (Eqs. 2-7) with the nominal friction law; pressures linear in theta_con (Eq. 6); "
+        "forms": {"base": "the paper's friction model (Eqs. 2-7) with the nominal friction law; pressures linear in theta_con (Eq. 6); "
                           "a per-trial gain on the contact force, mean per speed within ±2 sd/sqrt(n) of 1",
                   "control": "base with mu_s, mu_k, v_s re-identified",
                   **{e: diag.fits[e].candidate.kernel.form for e in diag.identifiability}},  # type: ignore[union-attr]

@@ -546,7 +546,7 @@ def _columns(header: list[str], name: str, header_line: int) -> tuple[str, str]:
     missing = [c for c, ok in (("time_s", "time_s" in header), ("force_g or force_N", force_col is not None)) if not ok]
     if missing:
         hints = [h for h in header if h not in _KNOWN and (h.lower().startswith(("time", "force")) or h.lower() == "t")]
-        hint = f" (not SPEC names: {', '.join(hints)}; use time_s, force_g or force_N, depth_mm)" if hints else ""
+        hint = f" (not names tympani reads: {', '.join(hints)}; use time_s, force_g or force_N, depth_mm)" if hints else ""
         raise InputError(where, f"missing column(s) {', '.join(missing)}; found {found}{hint}")
     return "time_s", force_col  # type: ignore[return-value]
 

@@ -1561,7 +1561,7 @@ def generate(effect: str | None, seed: int, *, strength: float = 1.0,
 
     sc = ref["pressure_scale"]
     base = {
-        "model": "SPEC section 4, linear pressure, axial projection of friction",
+        "model": "the paper's friction model: linear pressure, axial projection of friction",
         "friction_when_stopped": "held: mu frozen at mu(v_cruise) during the dwell, so the "
                                  "base force stays at its last value",
         "mu_k": ds["mu_k"], "mu_s": ds["mu_s"], "v_s_mm_s": ds["v_s"], "delta_s": ds["delta_s"],
