@@ -358,7 +358,7 @@ class MeasureConfig:
     contact_tol_mm: float = 0.05
     contact_persist_mm: float = 0.5
     contact_excess_mm: float = 0.1
-    contact_bias_mm: float = 0.05
+    contact_bias_mm: float = 0.1
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
     min_step_mm: float = 0.03
