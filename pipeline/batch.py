@@ -5,7 +5,7 @@ The layers follow trackpy's ``locate``/``batch``:
 
 - :func:`measure_frames` streams a :class:`~vision.frames.FrameSource` through registration
   and ``vision.angles.measure_frame``, one :class:`MeasuredFrame` at a time;
-- :func:`extract_video` collects that stream into the angles table (SPEC §6);
+- :func:`extract_video` collects that stream into the angles table (docs/file-formats.md);
 - :func:`process_video` is the unit of work: it takes a *path*, opens it itself (so it runs in
   a worker process or on a Dask worker), writes ``<trial>.angles.csv``,
   ``<trial>.registration.json`` and ``<trial>.provenance.json`` atomically, and skips videos
@@ -74,7 +74,7 @@ __all__ = [
     "MANIFEST_REQUIRED",
 ]
 
-#: The SPEC §6 angles-table columns, in order; extra columns follow them.
+#: The angles table's fixed columns, in order (docs/file-formats.md); extra columns follow them.
 ANGLE_COLUMNS: tuple[str, ...] = ("trial", "frame", "time_s", "theta_tip", "theta_bot", "theta_con", "ok", "reason")
 
 #: Columns of the per-video summary returned by :func:`extract_batch`.
@@ -103,9 +103,9 @@ class ExtractConfig:
     Parameters
     ----------
     phantom : Phantom
-        Phantom geometry (SPEC §2).
+        Phantom geometry (:mod:`vision.geometry`).
     array : ElectrodeArray
-        Electrode array (SPEC §3).
+        Electrode array (:mod:`vision.geometry`).
     recheck_every : int
         Check the registration every this many frames (0: never).
     register_frames : int
@@ -141,8 +141,8 @@ class ExtractConfig:
     calibration : vision.frames.LensCalibration or None
         The camera's lens. Frames are undistorted with it (:func:`vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole
-        image SPEC's similarity model describes; the measurement samples the recorded frames
-        where the lens put its strip's points
+        image that the registration's similarity (phantom mm to image px) describes; the
+        measurement samples the recorded frames where the lens put its strip's points
         (:meth:`~vision.frames.LensCalibration.distort_points`), which costs nothing a frame.
         None: frames are taken as they are.
     """
@@ -913,9 +913,9 @@ def process_video(
 ) -> dict:
     """Extract one video's angles and write them, with registration and provenance, to files.
 
-    Writes ``<trial>.angles.csv``, ``<trial>.registration.json`` (SPEC §6 keys of the first
-    registration, plus ``registrations``: every registration used, with the frame it started
-    at, and ``lost``: the spans in which the registration was lost) and
+    Writes ``<trial>.angles.csv``, ``<trial>.registration.json`` (the first registration's
+    pose and fit keys, docs/file-formats.md, plus ``registrations``: every registration used,
+    with the frame it started at, and ``lost``: the spans in which the registration was lost) and
     ``<trial>.provenance.json`` (written last: its presence marks a finished video) in
     ``out_dir``, each atomically. If interrupted while writing, the files written so far in this
     call are removed again.
@@ -1263,7 +1263,7 @@ def _number(where: str, column: str, text: str, *, positive: bool) -> float:
 
 
 def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.DataFrame:
-    """Read and validate an experiment manifest (SPEC §6).
+    """Read and validate an experiment manifest (docs/file-formats.md).
 
     The manifest is a CSV with a header row and one row a trial: ``trial``, ``speed_mm_s``,
     ``force`` and ``video`` and/or ``angles`` (file paths relative to the manifest's folder),

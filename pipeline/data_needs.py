@@ -62,7 +62,7 @@ def lacks(table: pd.DataFrame, *, contact_angles: bool = True, min_speeds: int =
     Parameters
     ----------
     table : DataFrame
-        A synced table (SPEC §6).
+        A synced table (docs/file-formats.md).
     contact_angles : bool
         Whether ``theta_bot``/``theta_con`` are needed.
     min_speeds : int

@@ -1,11 +1,11 @@
-"""Sim-to-real gap diagnosis (SPEC §5 effects, §6 ``diagnosis.json``; GUIDE §4).
+"""Sim-to-real gap diagnosis (docs/diagnosis.md; ``diagnosis.json`` in docs/file-formats.md).
 
 ``tympani diagnose SYNCED --out DIR`` calls :func:`read_synced`, :func:`diagnose` and
 :func:`pipeline.diagnosis_report.write_diagnosis`.
 
 Candidates
 ----------
-- ``base``: the SPEC §4 model with the *nominal* friction law (:attr:`DiagnosisConfig.friction`,
+- ``base``: the paper's friction model with the *nominal* friction law (:attr:`DiagnosisConfig.friction`,
   by default the paper's mu_s = 0.18, mu_k = 0.12 with the v_s and delta_s fitted to TABLE II: the
   simulation's) and the four pressure coefficients identified (Eq. 6, each linear in theta_con).
 - ``control``: the same with the Stribeck law re-identified (``mu_s``, ``mu_k``, ``v_s``). An
@@ -63,7 +63,7 @@ after; the share of the paper-style peak-force drop the effect explains.
 
 Fitting (variable projection)
 -----------------------------
-With ``mu(v)`` fixed, the SPEC §4 force is linear in the pressures. They are parametrised by their
+With ``mu(v)`` fixed, the model's force is linear in the pressures. They are parametrised by their
 values at ``theta_con = 0`` and at the largest theta_con of the data, both >= 0 (so the clipped and
 the linear law agree on the data), and found by non-negative least squares (alternating with the
 trial gains) inside every evaluation of the non-linear parameters (the control's friction
@@ -276,7 +276,7 @@ class Prepared:
     Attributes
     ----------
     rows : pandas.DataFrame
-        The subsampled rows (SPEC synced columns + ``v_inst_mm_s``, ``phase``, ``phase_label``,
+        The subsampled rows (the synced table's columns + ``v_inst_mm_s``, ``phase``, ``phase_label``,
         ``elapsed_s``), sorted by trial and time.
     y : ndarray
         Measured force (g).
@@ -398,7 +398,7 @@ class ArcQuadrature:
     Attributes
     ----------
     u : ndarray, shape (m,)
-        Node positions as a fraction of the arc from the tip (SPEC Eq. 6's ``s / l_con``).
+        Node positions as a fraction of the arc from the tip (``s / l_con`` of the paper's Eq. 6).
     gn, gt : ndarray, shape (n, m)
         ``n_out . x_w`` and ``t . x_w`` at the nodes (dimensionless).
     dtheta : ndarray, shape (n, m)
@@ -556,7 +556,7 @@ def prepare(
     Parameters
     ----------
     table : pandas.DataFrame
-        SPEC §6 synced table (``trial``, ``speed_mm_s`` mm/s, ``time_s`` s, ``force_g`` g,
+        Synced table (``trial``, ``speed_mm_s`` mm/s, ``time_s`` s, ``force_g`` g,
         ``theta_tip``, ``theta_bot``, ``theta_con`` rad; optional ``depth_mm`` mm, which marks the
         rows where the robot stands).
     config : DiagnosisConfig
@@ -1684,7 +1684,7 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
     """The verdict from held-out mean squared errors.
 
     The *reference* is the better (smaller held-out MSE) of ``base`` and ``control``: an effect
-    must beat the SPEC model both with its nominal and with its re-identified friction law.
+    must beat the paper's model both with its nominal and with its re-identified friction law.
     Rule (thresholds of :class:`DiagnosisConfig`, frozen):
 
     1. An effect *explains a gap* when, at one-sided level ``alpha`` of the bootstrap over trials,
@@ -1980,7 +1980,7 @@ def diagnose(
     Parameters
     ----------
     table : pandas.DataFrame
-        SPEC §6 synced table (units in the column names; angles in rad).
+        Synced table (docs/file-formats.md; units in the column names, angles in rad).
     config : DiagnosisConfig
         Thresholds, subsampling, bootstrap size, seed.
     source : str or PathLike
@@ -2044,7 +2044,7 @@ def diagnose(
     lof = {nm: _two_part_lof(ds, ds.y - held_shared[nm], ds.y - held_free[nm], config) for nm in ("base", "control")}
     lof.update({f"{nm}_in_sample": lack_of_fit(ds, ds.y - fitted_shared[nm], bins=config.phase_bins,
                                                alpha=config.lof_alpha) for nm in ("base", "control")})
-    # a gap needs the SPEC model as simulated (base) to miss the repeat scatter on held-out speeds;
+    # a gap needs the paper's model as simulated (base) to miss the repeat scatter on held-out speeds;
     # the control nearly always misses it out of sample (its free friction law extrapolates badly),
     # so it takes part through the gain test instead
     systematic = {nm: systematic_gap(ds, ds.y - held_shared[nm], config.phase_bins) for nm in names}
@@ -2156,7 +2156,8 @@ def _peak_drop_summary(ds: Prepared, fitted: dict, held: dict, leader: str) -> d
 
 
 def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) -> dict:
-    """The ``diagnosis.json`` content: SPEC §6 keys first, then extras (JSON-safe).
+    """The ``diagnosis.json`` content (docs/file-formats.md), JSON-safe: the main keys first, then
+    the details.
 
     Parameters
     ----------
@@ -2200,7 +2201,7 @@ def diagnosis_to_json(diag: Diagnosis, source: str | os.PathLike | None = None) 
         "effect": diag.effect,
         "ranking": ranking,
         "gap": gap,
-        # SPEC §6 lists by_speed and where beside gap's RMSEs: both readings find them
+        # by_speed and where also at the top level, beside gap's RMSEs: a reader finds them either way
         "by_speed": gap.get("by_speed"),
         "where": diag.where,
         "heldout": dict(

@@ -17,7 +17,7 @@ Scores
   (held-out RMSE against the measured force, base -> effect; includes the noise floor) and
   ``true_shrink_pct``, the same against the noiseless force of the generator (the gap itself).
 - *detectable*: the generator's noiseless gap RMS exceeds twice its noise RMS
-  (``truth["detectable"]``); *residually detectable*: the part of the gap the SPEC model cannot absorb
+  (``truth["detectable"]``); *residually detectable*: the part of the gap the paper's model cannot absorb
   (:func:`residual_gap`) exceeds twice the noise RMS.
 
 A row-number column (``row_id``, not truth) is added to the table so that the held-out
@@ -269,7 +269,7 @@ FAMILIES = {"A": family_a, "B": family_b}
 
 
 def residual_gap(ds, clean_g: np.ndarray, base_g: np.ndarray, config: DiagnosisConfig) -> float:
-    """The part (RMS, g) of a hidden effect that the SPEC model cannot absorb.
+    """The part (RMS, g) of a hidden effect that the paper's model cannot absorb.
 
     The control (friction law re-identified, trial gains) is fitted to the noiseless force with the
     effect and to the noiseless force without it (same trials); the result is

@@ -1,4 +1,4 @@
-"""Experiments that would split effects the diagnosis cannot tell apart (GUIDE §4).
+"""Experiments that would split effects the diagnosis cannot tell apart (docs/diagnosis.md).
 
 For each candidate experiment — a **dwell** after the stop, a **retraction** right after the
 insertion, a second lubricant **viscosity**, a **baseline** log before the robot moves — every

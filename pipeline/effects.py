@@ -1,4 +1,4 @@
-"""Unmodelled effects (SPEC §5) as composable terms on the base friction model.
+"""Unmodelled effects (docs/diagnosis.md) as composable terms on the base friction model.
 
 Each :class:`Effect` turns the base model's force into an augmented force with one or two
 parameters; all of them have a *null* value at which they change nothing, so "no effect" is
@@ -119,7 +119,7 @@ class EffectContext:
 
     @classmethod
     def from_synced(cls, df: pd.DataFrame, phantom: Phantom = DEFAULT_PHANTOM) -> "EffectContext":
-        """Build the context of a synced table (SPEC §6; ``depth_mm`` used when present)."""
+        """Build the context of a synced table (docs/file-formats.md; ``depth_mm`` used when present)."""
         trial = pd.factorize(df["trial"])[0]
         time = df["time_s"].to_numpy(float)
         theta_con = np.clip(df["theta_con"].to_numpy(float), 0.0, None)
@@ -203,7 +203,7 @@ class Effect:
     Parameters
     ----------
     name : str
-        SPEC §5 name.
+        Effect name, as the diagnosis and ``--effect`` name it.
     params : tuple of str
         Parameter names (with units).
     lower, upper : tuple of float
@@ -215,7 +215,7 @@ class Effect:
     term : callable
         ``term(force_g, ctx, values, mu) -> force_g``.
     signature : str
-        How the effect shows in data (SPEC §5).
+        How the effect shows in data.
     """
 
     name: str
@@ -272,5 +272,5 @@ EFFECTS: dict[str, Effect] = {
 
 
 def effect_names() -> list[str]:
-    """The SPEC §5 effect names, in the library's order."""
+    """The effect names, in the library's order."""
     return list(EFFECTS)

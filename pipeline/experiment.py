@@ -4,18 +4,18 @@
 pose, one look) and several trials per insertion speed; trials differ in how the contact run
 grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is written::
 
-    OUT/manifest.csv           trial, speed_mm_s, video, force, fps, video_t0_s (SPEC §6)
+    OUT/manifest.csv           trial, speed_mm_s, video, force, fps, video_t0_s (docs/file-formats.md)
     OUT/videos/<trial>.mp4     (or a PNG folder with --png)
     OUT/force/<trial>.csv      force log: time_s, force_g, depth_mm on the sensor's clock
     OUT/truth/<trial>.csv      per frame: time_s, depth_mm, theta_tip, theta_bot, theta_con, ...
-    OUT/truth/pose.json        the camera pose (SPEC registration keys) and the render settings
+    OUT/truth/pose.json        the camera pose (the registration JSON's keys) and the render settings
     OUT/truth/effect.json      the hidden effect (or null) and its noiseless gap vs the noise
 
 The force is the model of :mod:`pipeline.friction` with the paper's S4 constants as fitted to
 its TABLE II (:func:`pipeline.paper.paper_params`) on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
 ``video_t0_s`` on the force log's clock.
 
-With ``ExperimentConfig.effect`` set, a hidden unmodelled effect (SPEC §5) is applied to the
+With ``ExperimentConfig.effect`` set, a hidden unmodelled effect (docs/diagnosis.md) is applied to the
 force logs with the generator forms of :mod:`pipeline.synthetic` (not the library forms the
 diagnosis fits), and ``OUT/truth/effect.json`` records it: name, strength, parameters, and the
 noiseless gap (RMS of the force with minus without the effect) against the noise. The
@@ -100,7 +100,7 @@ class ExperimentConfig:
     dwell_s : float
         Time (s) filmed and logged after the robot stops at ``depth_mm``.
     effect : str or None
-        Hidden effect (SPEC §5 name) applied to the force logs, or None.
+        Hidden effect (its name, as the diagnosis names it) applied to the force logs, or None.
     strength : float
         Size of the hidden effect (0 absent, 1 typical; see :mod:`pipeline.synthetic`).
     effect_params : tuple of (str, float) pairs
@@ -163,7 +163,7 @@ def clean_forces_from_truth(
     sensor : SensorConfig
         Sampling (``rate_hz``, ``lead_s``).
     effect : str or None
-        Hidden effect (SPEC §5 name) or None.
+        Hidden effect (its name) or None.
     effect_values : dict, optional
         Its parameters (:func:`pipeline.synthetic.draw_effect_params`).
     rng : numpy.random.Generator, optional
@@ -206,7 +206,7 @@ def force_log_from_truth(
     effect_values: dict | None = None,
     effect_rng: np.random.Generator | None = None,
 ) -> pd.DataFrame:
-    """A force log (SPEC §6) for one rendered trial.
+    """A force log (docs/file-formats.md) for one rendered trial.
 
     Parameters
     ----------
@@ -221,7 +221,7 @@ def force_log_from_truth(
     sensor : SensorConfig
         Sampling, noise and quantisation.
     effect : str or None
-        Hidden effect (SPEC §5 name) applied before the noise, or None.
+        Hidden effect (its name) applied before the noise, or None.
     effect_values : dict, optional
         Its parameters (:func:`pipeline.synthetic.draw_effect_params`).
     effect_rng : numpy.random.Generator, optional

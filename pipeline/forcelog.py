@@ -1,4 +1,4 @@
-"""Force logs (SPEC §6): read, validate, clean.
+"""Force logs (docs/file-formats.md): read, validate, clean.
 
 A force log is a CSV whose lines starting with ``#`` are comments: a header naming ``time_s``
 and ``force_g`` or ``force_N`` (optionally ``depth_mm``), then one row a sample. What is wrong
@@ -29,7 +29,7 @@ values that look like the other unit           warning (e.g. ``force_g`` peaking
 fewer than ``min_samples`` samples             error
 =============================================  ================================================
 
-``force_N`` is converted to grams-force with 1 g = 9.80665e-3 N (SPEC §1).
+``force_N`` is converted to grams-force with 1 g = 9.80665e-3 N.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ __all__ = [
     "find_saturation",
 ]
 
-#: Newtons per gram-force (SPEC §1).
+#: Newtons per gram-force (1 g = 9.80665e-3 N).
 N_PER_G: float = 9.80665e-3
 #: Grams-force per newton.
 G_PER_N: float = 1.0 / N_PER_G
@@ -662,7 +662,8 @@ def _unit_warning(column: str, peak_abs: float, cfg: ForceLogConfig) -> str | No
 
 @dataclass(frozen=True)
 class ForceSamples:
-    """A force log's samples before cleaning, in SPEC units, and what to call things in messages.
+    """A force log's samples before cleaning, in tympani's units (s, g, mm), and how messages
+    name things.
 
     Parameters
     ----------
@@ -686,8 +687,8 @@ class ForceSamples:
         How messages name the time and force columns (``"time_s"``, ``"force_g"``, or a log
         format's ``"[force] column 'field.Fz'"``).
     check_units : bool
-        Warn when the values look like they are in the other unit (SPEC columns only: a log
-        format states its unit).
+        Warn when the values look like they are in the other unit (tympani's own columns only:
+        a log format states its unit).
     """
 
     time_s: np.ndarray
@@ -817,7 +818,7 @@ def clean_force_samples(samples: ForceSamples, cfg: ForceLogConfig = ForceLogCon
 
 
 def _spec_columns(header: CsvHeader) -> dict[str, ColumnKind]:
-    """The SPEC §6 columns of a force log's header (time_s, the force column, depth_mm if any)."""
+    """The columns tympani reads from a force log's header (time_s, the force column, depth_mm if any)."""
     time_col, force_col = _columns(list(header.columns), header.name, header.line)
     wanted: dict[str, ColumnKind] = {time_col: "number", force_col: "number"}
     if "depth_mm" in header.columns:
@@ -849,7 +850,7 @@ def parse_force_log(text: str, *, name: str = "<force log>", cfg: ForceLogConfig
     Parameters
     ----------
     text : str
-        The CSV content (SPEC §6).
+        The CSV content, in tympani's own form (docs/file-formats.md).
     name : str
         The log's name or path, used in messages and the report.
     cfg : ForceLogConfig
@@ -875,7 +876,7 @@ def parse_force_log(text: str, *, name: str = "<force log>", cfg: ForceLogConfig
 
 
 def read_force_log(path: str | os.PathLike, cfg: ForceLogConfig = ForceLogConfig()) -> tuple[pd.DataFrame, ForceLogReport]:
-    """Read, validate and clean a force log file (SPEC §6), in chunks (:func:`read_csv_columns`).
+    """Read, validate and clean a force log file (docs/file-formats.md), in chunks (:func:`read_csv_columns`).
 
     Parameters
     ----------

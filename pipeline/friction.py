@@ -100,7 +100,7 @@ __all__ = [
     "FLAT_NAMES",
 ]
 
-#: Newtons per gram-force (SPEC §1).
+#: Newtons per gram-force (1 g = 9.80665e-3 N).
 G_N = 9.80665e-3
 
 FrictionMode = Literal["vector", "axial"]
@@ -122,7 +122,7 @@ class PressureLaw(Protocol):
 
 @dataclass(frozen=True)
 class LinearPressure:
-    """``p = p0 + p1 * theta_con`` (the default law, SPEC §4).
+    """``p = p0 + p1 * theta_con`` (the default pressure law of the paper's friction model).
 
     Parameters
     ----------
@@ -174,7 +174,7 @@ class PiecewisePressure:
 
 @dataclass(frozen=True)
 class FrictionParams:
-    """Parameters of the SPEC §4 force model.
+    """Parameters of the paper's friction model (Eqs. 2–7, docs/paper.md).
 
     The defaults are the seed paper's S4 as fitted to its TABLE II (:func:`pipeline.paper.fit_table_ii`,
     ``tympani paper``): the quoted coefficients with 0.18 static, the fitted Stribeck constants
@@ -272,8 +272,9 @@ def params_from_flat(values: Mapping[str, float], base: FrictionParams | None = 
 def stribeck(v_mm_s: np.ndarray | float, params: FrictionParams) -> np.ndarray:
     """Friction coefficient of Eq. (7) at sliding speed ``v_mm_s``.
 
-    ``mu(v) = mu_k + (mu_s - mu_k) exp(-|v / v_s|^delta_s) + mu_v |v|``. SPEC writes the viscous
-    term ``mu_v v``; for the insertion speeds it is about (``v > 0``) the two agree. A negative
+    ``mu(v) = mu_k + (mu_s - mu_k) exp(-|v / v_s|^delta_s) + mu_v |v|``. The viscous term
+    ``mu_v |v|`` extends the paper's Eq. (7) (held at 0 by default); for the insertion speeds
+    (``v > 0``) it equals ``mu_v v``. A negative
     speed (retraction) gives the same ``mu`` as its magnitude; the direction is handled in
     :func:`force_from_integrals`.
 
@@ -514,9 +515,9 @@ def force_from_integrals(
         Model parameters (pressures in MPa, ``b_c`` in mm). Pressures are clipped at 0: a
         wall cannot pull the array.
     friction_mode : {"vector", "axial"}
-        ``"vector"`` (default, SPEC Eqs. 2–5): friction vectors summed and projected on
-        ``x_w``. ``"axial"``: each element's friction magnitude acts along ``x_w`` (for
-        comparison only; not SPEC).
+        ``"axial"`` (default, :data:`DEFAULT_FRICTION_MODE`): each element's friction magnitude
+        acts along ``x_w``, the reading that reproduces the paper's TABLE II. ``"vector"``:
+        friction vectors summed and projected on ``x_w``, Eqs. (2)–(5) read literally.
 
     Returns
     -------
@@ -547,12 +548,12 @@ def insertion_force(
     *,
     friction_mode: FrictionMode = DEFAULT_FRICTION_MODE,
 ) -> np.ndarray:
-    """Sensed insertion force (g) of SPEC §4 for contact arcs and speeds.
+    """Sensed insertion force (g) of the paper's friction model for contact arcs and speeds.
 
     Parameters
     ----------
     theta_bot : array_like
-        Contact start angle (rad, SPEC §3).
+        Contact start angle (rad; docs/file-formats.md, the angles).
     theta_tip : array_like
         Tip angle (rad). ``theta_con = theta_tip - theta_bot <= 0`` gives 0 force.
     speed_mm_s : array_like
@@ -560,7 +561,7 @@ def insertion_force(
     params : FrictionParams
         Friction law, contact width (mm) and pressure laws (MPa vs rad).
     phantom : Phantom or ContactGeometry
-        Phantom frame geometry (default: SPEC's phantom).
+        Phantom frame geometry (default: :data:`~vision.geometry.DEFAULT_PHANTOM`).
     friction_mode : {"vector", "axial"}
         See :func:`force_from_integrals`.
 

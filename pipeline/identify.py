@@ -1,4 +1,4 @@
-"""Identify friction and pressure parameters of the SPEC §4 model from a synced table.
+"""Identify friction and pressure parameters of the paper's friction model from a synced table.
 
 ``tympani fit SYNCED --out DIR`` calls :func:`read_synced`, :func:`fit_synced` and
 :func:`write_fit`.
@@ -120,7 +120,7 @@ __all__ = [
     "synthetic_synced",
 ]
 
-#: Columns a synced table must have (SPEC §6).
+#: Columns a synced table must have (docs/file-formats.md).
 SYNCED_COLUMNS = ("trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con")
 
 #: Bounds of every parameter (units as in :class:`pipeline.friction.FrictionParams`).
@@ -364,7 +364,7 @@ def validate_synced(
     Parameters
     ----------
     table : pandas.DataFrame
-        SPEC §6 synced table: ``trial``, ``speed_mm_s`` (mm/s), ``time_s`` (s), ``force_g``
+        Synced table: ``trial``, ``speed_mm_s`` (mm/s), ``time_s`` (s), ``force_g``
         (g), ``theta_tip``, ``theta_bot``, ``theta_con`` (rad).
     source : str or PathLike
         Named in errors.
@@ -694,12 +694,12 @@ def fit_synced(
     phantom: Phantom | ContactGeometry = DEFAULT_PHANTOM,
     source: str | os.PathLike = "<synced table>",
 ) -> FitResult:
-    """Fit the SPEC §4 model to a synced table over all speeds.
+    """Fit the paper's friction model to a synced table over all speeds.
 
     Parameters
     ----------
     table : pandas.DataFrame
-        SPEC §6 synced table (``trial``, ``speed_mm_s`` mm/s, ``time_s`` s, ``force_g`` g,
+        Synced table (``trial``, ``speed_mm_s`` mm/s, ``time_s`` s, ``force_g`` g,
         ``theta_tip``, ``theta_bot``, ``theta_con`` rad); checked with :func:`validate_synced`.
     options : FitOptions
         Free and held parameters, starts, seed, standard-error method.
@@ -837,7 +837,7 @@ def fit_synced(
 
 
 def fit_to_json(result: FitResult) -> dict:
-    """The fit.json content (SPEC §6 keys first, then extras).
+    """The fit.json content (docs/file-formats.md): the main keys first, then the details.
 
     Parameters
     ----------

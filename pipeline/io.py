@@ -294,7 +294,7 @@ def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> 
 def atomic_write_csv(path: str | os.PathLike, df: pd.DataFrame, *, index: bool = False, **kwargs: Any) -> Path:
     """Write a DataFrame as CSV atomically.
 
-    Boolean columns are written as ``true``/``false`` (SPEC §6), missing values as empty
+    Boolean columns are written as ``true``/``false`` (docs/file-formats.md), missing values as empty
     fields. Extra keyword arguments go to :meth:`pandas.DataFrame.to_csv`.
     """
     out = df.copy()

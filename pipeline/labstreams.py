@@ -1,18 +1,18 @@
-"""A lab's force, depth and angle logs as they are, read through its log format (SPEC §6).
+"""A lab's force, depth and angle logs as they are, read through its log format (docs/lab-logs.md).
 
 :func:`read_lab_logs` reads one trial's logs (CSV in chunks, or ROS bags) and puts them on the
 *force clock*:
 
 - **Force** (``[force]``): the time column in its unit, the force column times unit, sign and
-  gain, in g; then the same checks and cleaning as a SPEC force log
+  gain, in g; then the same checks and cleaning as a force log in tympani's own form
   (:func:`pipeline.forcelog.clean_force_samples`). Integer stamps (epoch nanoseconds overflow a
   float's exact integers) stay int64 until the force log's first stamp is subtracted, so the
   synced table's ``time_s`` counts seconds from the force log's first sample, exactly. Without
-  ``[force]`` the force log is in SPEC form and ``time_s`` is its own.
+  ``[force]`` the force log is in tympani's own form and ``time_s`` is its own.
 - **Depth** (``[depth]``, the manifest's ``depth`` column): the stage's position log on the same
   clock. Its motion start and stop are found (:func:`pipeline.motion.find_motion`) and its
   position is interpolated linearly onto the force samples as ``depth_mm`` (empty outside the
-  depth log: no extrapolation). Without ``[depth]`` a depth log has SPEC columns ``time_s`` and
+  depth log: no extrapolation). Without ``[depth]`` a depth log has tympani's columns ``time_s`` and
   ``depth_mm``.
 - **Angles** (``[angles]``, the manifest's ``angles`` column): another tracker's track, in rad,
   with ``theta_tip`` and whichever of ``theta_bot``/``theta_con`` it has (the third follows from
@@ -75,8 +75,8 @@ class Clock:
     Parameters
     ----------
     origin_ns : int or None
-        The force log's first stamp in ns, exact; None: stamps are taken as they are (a SPEC
-        force log's ``time_s``).
+        The force log's first stamp in ns, exact; None: stamps are taken as they are (the
+        ``time_s`` of a force log in tympani's own form).
     origin : str
         That stamp as written, with its unit (``"1566497791436127452 ns"``), for the report.
     """
@@ -214,7 +214,8 @@ class LabLogs:
     clock : Clock
     depth : DepthLog or None
     track : AngleTrack or None
-        Another tracker's angles (the format's ``[angles]``), or None (SPEC angles table or video).
+        Another tracker's angles (the format's ``[angles]``), or None (tympani's own angles
+        table, or a video).
     warnings : tuple of str
     """
 
@@ -393,7 +394,7 @@ def read_depth_log(path: str | os.PathLike, fmt: DepthFormat | None, clock: Cloc
     path : str or PathLike
         The log (CSV or bag).
     fmt : DepthFormat or None
-        Its ``[depth]`` section; None: SPEC columns ``time_s`` (s) and ``depth_mm`` (mm).
+        Its ``[depth]`` section; None: tympani's columns ``time_s`` (s) and ``depth_mm`` (mm).
     clock : Clock
         The force clock (the depth log shares it).
 
@@ -588,7 +589,7 @@ def read_lab_logs(
     force_path : str or PathLike
         The force log (CSV or bag).
     fmt : LogFormat or None
-        The lab's log format; None: SPEC forms.
+        The lab's log format; None: every log is in tympani's own form.
     depth_path : str or PathLike, optional
         The depth log.
     angles_path : str or PathLike, optional

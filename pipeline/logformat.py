@@ -1,4 +1,4 @@
-"""Log format files: how a lab's own force, depth and angle logs are read (SPEC §6).
+"""Log format files: how a lab's own force, depth and angle logs are read (docs/lab-logs.md).
 
 A lab's logs are never in tympani's own form: the clock may be UNIX time in nanoseconds, the
 force in newtons with the sign of the sensor's axis and a calibration gain, the insertion depth
@@ -69,7 +69,7 @@ __all__ = [
 
 #: Nanoseconds per unit of a time column.
 TIME_UNITS: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-#: Grams-force per unit of a force column (SPEC §1: 1 g = 9.80665e-3 N).
+#: Grams-force per unit of a force column (1 g = 9.80665e-3 N).
 FORCE_UNITS: dict[str, float] = {"g": 1.0, "mN": G_PER_N / 1000.0, "N": G_PER_N}
 #: Millimetres per unit of a depth column.
 DEPTH_UNITS: dict[str, float] = {"um": 1e-3, "mm": 1.0, "m": 1e3}
@@ -207,7 +207,7 @@ class AnglesFormat(StreamFormat):
 
     @property
     def columns(self) -> dict[str, str]:
-        """The angle columns named, by SPEC name (``theta_tip`` first)."""
+        """The angle columns named, keyed by tympani's column name (``theta_tip`` first)."""
         named = {"theta_tip": self.theta_tip, "theta_bot": self.theta_bot, "theta_con": self.theta_con}
         return {k: v for k, v in named.items() if v is not None}
 
@@ -221,12 +221,12 @@ class LogFormat:
     path : str
         The file (named in messages).
     force : ForceFormat or None
-        ``[force]``; None: the force log is in SPEC form (``time_s``, ``force_g``/``force_N``).
+        ``[force]``; None: the force log is in tympani's own form (``time_s``, ``force_g``/``force_N``).
     depth : DepthFormat or None
-        ``[depth]``; None: a depth log, if a trial names one, is in SPEC form (``time_s``,
+        ``[depth]``; None: a depth log, if a trial names one, is in tympani's own form (``time_s``,
         ``depth_mm``).
     angles : AnglesFormat or None
-        ``[angles]``; None: angles tables are in SPEC form (or come from a video).
+        ``[angles]``; None: angles tables are in tympani's own form (or come from a video).
     """
 
     path: str

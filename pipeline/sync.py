@@ -1,11 +1,11 @@
-"""Put angles and forces on one clock: the synced table (SPEC §6).
+"""Put angles and forces on one clock: the synced table (docs/file-formats.md).
 
 For each trial of a manifest, :func:`sync_manifest` reads the angles table (video clock) and the
 force log (force clock), finds the offset ``video_t0_s`` (the force-clock time of the video's
 ``time_s = 0``), interpolates the angles of the measured frames onto the force samples and
 stacks the trials into one table::
 
-    trial, speed_mm_s, time_s, force_g, theta_tip, theta_bot, theta_con,     (SPEC §6)
+    trial, speed_mm_s, time_s, force_g, theta_tip, theta_bot, theta_con,     (what analyses read)
     depth_mm, video_time_s, saturated, sync_offset_s, sync_uncertainty_s     (extras)
 
 ``time_s`` is the force clock; ``video_time_s = time_s - sync_offset_s``.
@@ -20,8 +20,8 @@ number of seconds) instead of the estimate below. ``docs/lab-logs.md`` works thr
 The offset
 ----------
 ``video_t0_s`` from the manifest is used when the trial's cell is filled in (``t0="auto"``,
-the default) and assumed exact. When it is blank, the offset is *estimated* (SPEC §6 reads a
-blank cell as 0 s; ``t0="manifest"`` does exactly that)
+the default) and assumed exact. When it is blank, the offset is *estimated* (``t0="manifest"``
+reads a blank cell as 0 s instead)
 (:func:`estimate_offset`): a signal of the force log, ``y(t)``, is compared with a smooth
 function of an angle measured in the video, ``x`` at the frame times ``t_k``:
 
@@ -57,7 +57,7 @@ Uncertainty: ``uncertainty_s = sqrt(stat_se_s² + angle_noise_s² + timing_se_s�
 
 With a depth column, the force-based offset is also computed when possible and reported as
 ``offset_force_s``; ``force_lag_s = offset_force_s − offset_s`` then estimates how much later
-the force responds than the robot (SPEC §5 ``sensor_lag``, plus the bias above). Without a
+the force responds than the robot (the diagnosis' ``sensor_lag``, plus the bias above). Without a
 depth column the force-based offset *absorbs* any sensor lag: a table synced that way hides the
 lag from a later diagnosis, so give ``video_t0_s`` (or log depth) when the lag matters.
 
@@ -104,7 +104,7 @@ __all__ = [
     "report_path",
 ]
 
-#: The SPEC §6 synced-table columns, in order.
+#: The synced table's fixed columns, in order (docs/file-formats.md).
 SYNC_COLUMNS: tuple[str, ...] = ("trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con")
 #: Extra columns written after :data:`SYNC_COLUMNS`.
 SYNC_EXTRA_COLUMNS: tuple[str, ...] = (
@@ -125,7 +125,7 @@ class SyncConfig:
     t0 : {"auto", "manifest", "estimate"}
         Where the offset comes from: ``"auto"`` uses the manifest's ``video_t0_s`` when the
         trial's cell is filled in and estimates it otherwise; ``"manifest"`` always uses the
-        manifest (a blank cell is 0 s, SPEC §6); ``"estimate"`` always estimates.
+        manifest (a blank cell is 0 s); ``"estimate"`` always estimates.
     signal : {"auto", "depth", "force"}
         What the estimate aligns: ``"depth"`` (force log ``depth_mm`` against ``theta_tip``),
         ``"force"`` (``force_g`` against ``theta_con``), or ``"auto"`` (depth when the log has a
@@ -262,7 +262,7 @@ class TrialSync:
     warnings : tuple of str
         One-line warnings.
     format_path : str or None
-        The log format file the trial was read through (SPEC §6), if any.
+        The log format file the trial was read through, if any.
     depth_path : str or None
         Its depth log, if any.
     depth : dict or None
@@ -326,7 +326,7 @@ def _parse_ok(cells: list[str], lines: np.ndarray, name: str) -> np.ndarray:
 
 
 def read_angles_table(path: str | os.PathLike) -> pd.DataFrame:
-    """Read and check an angles table (SPEC §6).
+    """Read and check an angles table (docs/file-formats.md).
 
     Parameters
     ----------
@@ -943,15 +943,15 @@ def sync_manifest(
     Parameters
     ----------
     manifest : str or PathLike
-        Manifest CSV (SPEC §6).
+        Manifest CSV (docs/file-formats.md).
     cfg : SyncConfig
         Settings.
     angles_dir : str or PathLike, optional
         Folder of ``<trial>.angles.csv`` for trials whose manifest row names no ``angles``
         table (the ``--out`` of ``tympani extract``); default: the manifest's folder.
     log_format : str or PathLike, optional
-        A log format file (SPEC §6, :mod:`pipeline.logformat`) for the rows whose ``format``
-        cell is blank; without either, the logs are read in SPEC form.
+        A log format file (:mod:`pipeline.logformat`, docs/lab-logs.md) for the rows whose
+        ``format`` cell is blank; without either, the logs are read in tympani's own form.
 
     Returns
     -------

@@ -1,8 +1,9 @@
-"""Synthetic experiments with a hidden unmodelled effect (SPEC §5), for blind tests of the diagnosis.
+"""Synthetic experiments with a hidden unmodelled effect, for blind tests of the diagnosis.
 
-:func:`synthetic_dataset` generates a force-and-angles-only experiment (no video) as a SPEC §6
-synced table, together with a *truth* dict that the diagnosis never sees: which effect was
-hidden, its parameters, the noise, and how large the effect is compared with the noise.
+:func:`synthetic_dataset` generates a force-and-angles-only experiment (no video) as a synced
+table (docs/file-formats.md), together with a *truth* dict that the diagnosis never sees: which
+effect was hidden (one of those of docs/diagnosis.md), its parameters, the noise, and how large
+the effect is compared with the noise.
 :func:`write_experiment` writes it as a manifest + angles tables + force logs (what ``tympani
 sync`` reads) and ``truth/effect.json``; ``tympani render --effect NAME [--no-video]`` is the
 command line. :func:`paper_case` is a dataset calibrated to the seed paper's speed drop.
@@ -11,7 +12,7 @@ No inverse crime
 ----------------
 The diagnosis fits the *library* forms of :mod:`pipeline.effects`. The data are generated with
 *different* forms, so a diagnosis is always tested on a model-form mismatch. Side by side
-(``p(u)`` the SPEC Eq. (6) pressure at ``u = s / l_con`` from the tip, ``g_n = n_out . x_w``,
+(``p(u)`` the paper's Eq. (6) pressure at ``u = s / l_con`` from the tip, ``g_n = n_out . x_w``,
 ``g_t = t . x_w`` along the outer wall, ``mu = mu(v)`` the Stribeck law, ``b_c`` the contact width):
 
 =================  ==========================================  ==============================================
@@ -248,7 +249,7 @@ class Protocol:
     angles_fps : float
         Frame rate (1/s) of the angle measurements (video clock).
     video_t0_s : float
-        Force-clock time (s) of video frame 0 (SPEC §6 ``video_t0_s``). Force samples before it
+        Force-clock time (s) of video frame 0 (the manifest's ``video_t0_s``). Force samples before it
         have no angles (NaN), as after ``tympani sync``.
     """
 
@@ -364,7 +365,7 @@ def kinematics_table(
     n_pts: int = 80,
     contact_tol_mm: float = 0.05,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """True SPEC angles against insertion depth for one contact policy (memoised).
+    """True angles (docs/file-formats.md) against insertion depth for one contact policy (memoised).
 
     A vectorised twin of :func:`vision.rendering.pose_at_depth`: for a grid of tip angles the
     array's centreline is the renderer's normal offset of the backbone (contact run on the outer
@@ -386,7 +387,7 @@ def kinematics_table(
     n_pts : int
         Centreline samples per tip angle.
     contact_tol_mm : float
-        Contact tolerance (mm, SPEC §3).
+        Contact tolerance (mm): largest gap to the outer wall that counts as contact.
 
     Returns
     -------
@@ -399,7 +400,7 @@ def kinematics_table(
 
 
 def _entry_angle(depth_mm: np.ndarray, phantom: Phantom) -> np.ndarray:
-    """SPEC angle (rad) of the tip on the insertion axis at depth <= 0 (k = 0: the polar angle)."""
+    """Angle (rad) of the tip on the insertion axis at depth <= 0 (k = 0: the polar angle)."""
     origin, x_w = _entry(phantom)
     xy = origin[None, :] + np.asarray(depth_mm, dtype=float)[:, None] * x_w[None, :]
     return np.arctan2(xy[:, 1], xy[:, 0])
@@ -537,7 +538,7 @@ def _wall_turn(geom: ContactGeometry) -> np.ndarray:
 class _Arc:
     """Midpoint quadrature nodes on the contact arcs of some rows.
 
-    ``u`` (nodes,) from the tip; per row: ``length_mm``, ``p`` (MPa, SPEC Eq. 6 at the nodes),
+    ``u`` (nodes,) from the tip; per row: ``length_mm``, ``p`` (MPa, the paper's Eq. 6 at the nodes),
     ``gn``/``gt`` (n_out . x_w, and the friction direction's component along x_w: 1 for the default
     axial projection), ``psi`` (rad, wall turning from the contact start).
     """
@@ -752,12 +753,12 @@ def _drift_apply(force_g, state, values, rng):
 
 @dataclass(frozen=True)
 class HiddenEffect:
-    """A generator of one SPEC §5 effect (a form deliberately unlike the library's).
+    """A generator of one unmodelled effect (docs/diagnosis.md; a form deliberately unlike the library's).
 
     Parameters
     ----------
     name : str
-        SPEC §5 name.
+        Effect name, as the diagnosis names it.
     kind : {"physical", "sensor"}
         Acts on the force at the contact, or on the sensed signal.
     form : str
@@ -846,7 +847,7 @@ HIDDEN_EFFECTS: dict[str, HiddenEffect] = {
 
 
 def hidden_effect_names() -> list[str]:
-    """Names of the generator effects (SPEC §5), without ``"none"``."""
+    """Names of the generator effects (as the diagnosis names them), without ``"none"``."""
     return list(HIDDEN_EFFECTS)
 
 
@@ -866,7 +867,7 @@ def draw_effect_params(name: str | None, rng: np.random.Generator, strength: flo
     Parameters
     ----------
     name : str or None
-        SPEC §5 name, or None / ``"none"`` (returns ``{}``).
+        Effect name, or None / ``"none"`` (returns ``{}``).
     rng : numpy.random.Generator
         Source of the draws.
     strength : float
@@ -893,7 +894,7 @@ def apply_hidden_effect(name: str | None, force_g: np.ndarray, state: TrialState
     Parameters
     ----------
     name : str or None
-        SPEC §5 name or None.
+        Effect name or None.
     force_g : ndarray
         The base model's force (g) at the trial's samples.
     state : TrialState
@@ -969,14 +970,14 @@ def synthetic_dataset(
     effect_params: Mapping[str, float] | None = None,
     phantom: Phantom = DEFAULT_PHANTOM,
 ) -> tuple[pd.DataFrame, dict]:
-    """A force-and-angles experiment with a hidden effect, as a SPEC §6 synced table.
+    """A force-and-angles experiment with a hidden effect, as a synced table.
 
     Parameters
     ----------
     rng : numpy.random.Generator
         Source of everything random (the only one used).
     effect : str or None
-        SPEC §5 name of the hidden effect, or None / ``"none"``.
+        Name of the hidden effect, or None / ``"none"``.
     strength : float
         Size of the effect (0 absent, 1 typical; dimensionless).
     speeds_mm_s : sequence of float
@@ -1178,7 +1179,7 @@ def effect_truth(effect: str | None, strength: float, values: Mapping[str, float
     Parameters
     ----------
     effect : str or None
-        SPEC §5 name or None.
+        Effect name or None.
     strength : float
         Its strength (dimensionless).
     values : mapping
@@ -1253,7 +1254,7 @@ def write_experiment(out_dir: str | Path, synced: pd.DataFrame, truth: Mapping, 
 
     Layout::
 
-        OUT/manifest.csv              trial, speed_mm_s, angles, force, fps, video_t0_s (SPEC §6)
+        OUT/manifest.csv              trial, speed_mm_s, angles, force, fps, video_t0_s (docs/file-formats.md)
         OUT/angles/<trial>.angles.csv trial, frame, time_s, theta_tip, theta_bot, theta_con, ok, reason
         OUT/force/<trial>.csv         time_s, force_g, depth_mm (force clock)
         OUT/truth/effect.json         the truth dict without its tables (never read by the diagnosis)

@@ -10,9 +10,9 @@ around. The diagnosis' thresholds were set on family A; family B is where they a
 One call of :func:`generate` produces one synthetic experiment: robotic insertions of a
 26 mm tapered electrode array into the planar scala-tympani phantom at several nominal
 speeds, several trials per speed, as one long table with one row per force sample.  The
-force is the SPEC section 4 base model (linear contact pressure on the outer-wall arc from
+force is the paper's friction model (linear contact pressure on the outer-wall arc from
 ``theta_bot`` to ``theta_tip``, Stribeck friction transmitted along the insertion axis)
-plus, optionally, one hidden *unmodelled effect* (SPEC section 5 names), passed through a
+plus, optionally, one hidden *unmodelled effect* (named as the diagnosis names them), passed through a
 sensor model (calibration gain, tare offset, white + AR(1) noise, 13-bit quantisation).
 The angles are those a video tracker would report: sampled at the video frame rate,
 noisy, interpolated onto the force clock.
@@ -61,7 +61,7 @@ __all__ = [
     "peak_drop",
 ]
 
-#: Names of the hidden effects (SPEC section 5 vocabulary).
+#: Names of the hidden effects (the diagnosis' names, docs/diagnosis.md).
 EFFECTS: tuple[str, ...] = (
     "hydrodynamic_lift",
     "viscous_drag",
@@ -78,18 +78,18 @@ G_N: float = 9.80665e-3
 N_ARC: int = 64
 #: Number of elements the wetted array is split into (viscous drag).
 N_WET: int = 48
-#: Array geometry (SPEC section 3): length and tip/base diameters, mm.
+#: Array geometry (the default array): length and tip/base diameters, mm.
 ARRAY_LENGTH_MM: float = 26.0
 ARRAY_D_TIP_MM: float = 0.6
 ARRAY_D_BASE_MM: float = 1.2
 
 
 # --------------------------------------------------------------------------------------
-# Geometry (SPEC section 2)
+# Geometry (the planar phantom of vision/geometry.py)
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Phantom:
-    """Constants of the planar phantom (SPEC section 2 defaults).
+    """Constants of the planar phantom (the default phantom).
 
     Attributes
     ----------
@@ -102,8 +102,8 @@ class Phantom:
         Angle where the two branches of Eq. (1) meet [deg].
     w_max_mm, w_ratio
         Channel-width law ``w = min(w_max_mm, w_ratio * r)`` [mm, -].  ``w`` is the *full*
-        width of the channel; each wall lies ``w / 2`` from the backbone (SPEC section 2:
-        "half the channel width w(theta) each side").
+        width of the channel; each wall lies ``w / 2`` from the backbone (half the
+        channel width each side, as in :mod:`vision.geometry`).
     entry_mm
         Length of the straight entry channel [mm].
     """
@@ -136,7 +136,7 @@ class Phantom:
         return np.where(phi < self.corner_deg, d1, d2)
 
     def width(self, theta: np.ndarray | float) -> np.ndarray:
-        """Full channel width ``w(theta) = min(w_max, w_ratio r(theta))`` [mm] (SPEC section 2)."""
+        """Full channel width ``w(theta) = min(w_max, w_ratio r(theta))`` [mm]."""
         return np.minimum(self.w_max_mm, self.w_ratio * self.r(theta))
 
     def half_width(self, theta: np.ndarray | float) -> np.ndarray:
@@ -155,7 +155,7 @@ class Phantom:
 
 
 def point_theta(x: np.ndarray, y: np.ndarray, ph: Phantom | None = None) -> np.ndarray:
-    """Unwrapped angle of phantom-frame points (SPEC section 2, "Angle of a point").
+    """Unwrapped angle of phantom-frame points (tympani's angle of a point, docs/file-formats.md).
 
     ``theta = phi + 2 pi k`` with ``phi`` in (-pi, pi] the polar angle and ``k >= 0`` the
     integer for which the backbone radius ``r(phi + 2 pi k)`` is closest to the point's
@@ -166,7 +166,7 @@ def point_theta(x: np.ndarray, y: np.ndarray, ph: Phantom | None = None) -> np.n
     x, y : array_like
         Point coordinates [mm] in the phantom frame.
     ph : Phantom, optional
-        Phantom constants (default SPEC values).
+        Phantom constants (default ``Phantom()``).
 
     Returns
     -------
@@ -191,9 +191,9 @@ def point_theta(x: np.ndarray, y: np.ndarray, ph: Phantom | None = None) -> np.n
     return out
 
 
-#: Radius of the array's tip [mm] (half the tip diameter, SPEC section 3).
+#: Radius of the array's tip [mm] (half the tip diameter).
 R_TIP_MM: float = 0.5 * ARRAY_D_TIP_MM
-#: Rider curves and wall look-ups only use wall points up to this SPEC angle [rad]: every
+#: Rider curves and wall look-ups only use wall points up to this angle [rad]: every
 #: tip position the generator needs lies in the first turn (theta < 2 pi), so a
 #: nearest-point query can never pick a point on another turn of the spiral.
 THETA_LOOKUP_MAX: float = 5.5
@@ -216,7 +216,7 @@ class Curve:
     kappa : numpy.ndarray
         Signed curvature [1/mm] (positive: turning counter-clockwise), smoothed over 0.1 mm.
     theta : numpy.ndarray
-        SPEC angle of each point [rad], strictly increasing.
+        Angle of each point [rad] (tympani's unwrapped angle), strictly increasing.
     tree : scipy.spatial.cKDTree
         Nearest-point index over the points with ``theta <= THETA_LOOKUP_MAX``.
     """
@@ -278,8 +278,8 @@ def _curve(poly: np.ndarray, ds: float, wall_side: str, ph: Phantom) -> Curve:
     kappa = np.gradient(psi, ds)
     win = max(1, int(round(0.1 / ds)))
     kappa = np.convolve(kappa, np.ones(win) / win, mode="same")
-    # Polar angle unwrapped along the curve from its start (k = 0 there).  This is the
-    # SPEC angle for points of the channel; it is used instead of the closest-radius rule
+    # Polar angle unwrapped along the curve from its start (k = 0 there).  This is
+    # tympani's angle for points of the channel; it is used instead of the closest-radius rule
     # because the inner wall lies almost exactly half-way between two turns (w = 0.38 r),
     # where that rule is ambiguous.
     theta = np.unwrap(np.arctan2(xy[:, 1], xy[:, 0]))
@@ -311,7 +311,7 @@ class PhantomGeometry:
     n_out : numpy.ndarray
         Unit outward normal (away from the spiral centre), shape (n, 2).
     theta : numpy.ndarray
-        SPEC angle of each wall point [rad], non-decreasing.
+        Angle of each wall point [rad] (tympani's unwrapped angle), non-decreasing.
     ndotx : numpy.ndarray
         ``n_out . x_w`` [-].
     kappa : numpy.ndarray
@@ -352,7 +352,7 @@ class PhantomGeometry:
     rider_in: Curve
 
     def s_of_theta(self, theta: np.ndarray) -> np.ndarray:
-        """Wall arc length [mm] at SPEC angle ``theta`` [rad] (linear interpolation)."""
+        """Wall arc length [mm] at angle ``theta`` [rad] (linear interpolation)."""
         return np.interp(theta, self.theta, self.S)
 
 
@@ -388,7 +388,7 @@ def _seg_intersect(A: np.ndarray, B: np.ndarray) -> tuple[int, int, np.ndarray] 
 
 
 def _wall_polylines(ph: Phantom) -> tuple[np.ndarray, np.ndarray]:
-    """Raw outer and inner wall polylines (SPEC section 2), before resampling.
+    """Raw outer and inner wall polylines, before resampling.
 
     Each wall is the backbone offset by half the channel width, ``w(theta) / 2``, along
     the backbone's unit normal (outer: away from o_c; inner: towards it).  At the 100 deg
@@ -408,7 +408,7 @@ def _wall_polylines(ph: Phantom) -> tuple[np.ndarray, np.ndarray]:
     A, B = outer
     m = 300
     hit = _seg_intersect(A[-m:], B[:m])
-    if hit is None:  # pragma: no cover - geometry always crosses for SPEC constants
+    if hit is None:  # pragma: no cover - geometry always crosses for the default constants
         wall_out = np.vstack([A, B[1:]])
     else:
         i, j, X = hit
@@ -452,7 +452,7 @@ def geometry(ph: Phantom = Phantom(), ds: float = 0.005) -> PhantomGeometry:
     """Build the walls of the phantom and the tip's rider curves (cached).
 
     The walls are the backbone offset by ``w(theta) / 2`` along its unit normal, on each
-    side (``w`` is the full channel width of SPEC section 2).  The polylines are resampled
+    side (``w`` is the full channel width).  The polylines are resampled
     to uniform arc-length steps ``ds`` [mm].
 
     Parameters
@@ -468,8 +468,8 @@ def geometry(ph: Phantom = Phantom(), ds: float = 0.005) -> PhantomGeometry:
     """
     wall_out, wall_in = _wall_polylines(ph)
     outer = _curve(wall_out, ds, "right", ph)
-    # SPEC angle of the outer wall by the closest-radius rule (it agrees with the
-    # unwrapped polar angle to rounding; kept in SPEC's own form for the contact arc)
+    # angle of the outer wall by the closest-radius rule of point_theta (it agrees with the
+    # unwrapped polar angle to rounding; kept in that form for the contact arc)
     th_spec = np.maximum.accumulate(point_theta(outer.xy[:, 0], outer.xy[:, 1], ph))
     th_spec = th_spec + np.arange(th_spec.size) * 1e-12
     inner = _curve(wall_in, ds, "left", ph)
@@ -494,7 +494,7 @@ class TipPath:
     depth : numpy.ndarray
         Depth grid [mm] (length of array past the entry's end).
     theta : numpy.ndarray
-        SPEC angle of the tip [rad] at each depth.
+        Angle of the tip [rad] at each depth.
     d_hit : float
         Depth [mm] at which the tip first touches the outer wall.
     theta_hit : float
@@ -576,7 +576,7 @@ def tip_path(geom: PhantomGeometry, e_lat: float, tilt: float, kappa0: float = 0
         Residual curvature of the free array [1/mm], negative = bending clockwise
         (towards the outer wall).
     r_tip : float
-        Tip radius [mm] (default: half the SPEC tip diameter).
+        Tip radius [mm] (default: half the default tip diameter).
     d_min, d_max, dd : float
         Depth grid [mm].
 
@@ -696,7 +696,7 @@ def wall_clearance(geom: PhantomGeometry, path: TipPath, d_end: float,
 
 
 # --------------------------------------------------------------------------------------
-# Friction, pressures and the contact arc (SPEC section 4)
+# Friction, pressures and the contact arc (the paper's friction model)
 # --------------------------------------------------------------------------------------
 def stribeck_mu(v: np.ndarray | float, mu_k: float, mu_s: float, v_s: float,
                 delta_s: float) -> np.ndarray:
@@ -780,7 +780,7 @@ def contact_arc(geom: PhantomGeometry, theta_bot: np.ndarray, theta_tip: np.ndar
 
 
 def linear_pressure(arc: Arc, p_tip: np.ndarray, p_bot: np.ndarray) -> np.ndarray:
-    """SPEC Eq. (6): ``p(s) = p_tip + (s / l_con)(p_bot - p_tip)`` [MPa], shape (m, N_ARC)."""
+    """The paper's Eq. (6): ``p(s) = p_tip + (s / l_con)(p_bot - p_tip)`` [MPa], shape (m, N_ARC)."""
     return p_tip[:, None] + arc.u[None, :] * (p_bot - p_tip)[:, None]
 
 
@@ -1115,9 +1115,9 @@ def _drag_force_g(depth: np.ndarray, vel: np.ndarray, arc: Arc, q: np.ndarray,
       contact): axial Couette flow round a rod of radius ``a(x)`` (tapered) moving at
       ``v`` inside a channel of equivalent radius ``R``; drag per unit length
       ``2 pi eta v / ln(R / a)`` (concentric annulus).  ``R`` is the local half-width
-      ``w(theta) / 2`` in the spiral (``w`` = full channel width, SPEC section 2) and
+      ``w(theta) / 2`` in the spiral (``w`` = full channel width) and
       ``r_entry w_max / 2`` in the entry, so the drag per mm depends on the local
-      clearance and on the taper.  ``R / a`` is at least 1.09 for the SPEC array and
+      clearance and on the taper.  ``R / a`` is at least 1.09 for the default array and
       phantom (entry, deepest insertion, ``r_entry = 0.8``); the floor of 1.05 below is
       only a guard.
     * **contact band** (the arc pressed on the outer wall): shear of the soft-EHL film

@@ -1,13 +1,13 @@
 """Greyscale conversion, Canny edges with automatic thresholds, and edge segmentation.
 
-The first stages of the measurement (GUIDE §1)::
+The first stages of the measurement (docs/how-it-works.md)::
 
     frame ─▶ to_gray ─▶ detect_edges (Gaussian, Sobel, Canny, hysteresis) ─▶ edge_segments
 
 Canny runs on our own float gradients (OpenCV's ``Canny(dx, dy, ...)`` overload with 16-bit
 derivatives), so smoothing happens in float and the result does not depend on whether the
 input was ``uint8`` or float (scikit-image's Canny has returned blank maps on integer input in
-some releases, GUIDE §3). Thresholds are set from the gradient magnitude's statistics: a
+some releases). Thresholds are set from the gradient magnitude's statistics: a
 multiple of the noise gradient (from its 25th percentile, so dense structure is not taken for
 noise), a small fraction of its 99th percentile and an absolute floor, whichever is largest.
 A blank or smoothly shaded frame therefore gives no edges, and the same scene under brighter

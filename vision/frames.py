@@ -32,12 +32,12 @@ Damaged input
 
 Lens distortion
 ---------------
-SPEC's frame model is a similarity between phantom and image. A lens that bends straight lines
-breaks it (see README, *Known limits*). :class:`LensCalibration` holds OpenCV's camera model
-(read from a JSON file): :func:`undistorter` maps a frame back to the ideal pinhole image, with
-the same camera matrix so that scale and centre stay those of the recording (what registration
-and checks see), and :meth:`LensCalibration.distort_points` sends ideal points to where the lens
-records them (how the measurement samples the recorded frames directly).
+The registration's frame model is a similarity between phantom and image. A lens that bends
+straight lines breaks it (see docs/known-limits.md). :class:`LensCalibration` holds OpenCV's
+camera model (read from a JSON file): :func:`undistorter` maps a frame back to the ideal pinhole
+image, with the same camera matrix so that scale and centre stay those of the recording (what
+registration and checks see), and :meth:`LensCalibration.distort_points` sends ideal points to
+where the lens records them (how the measurement samples the recorded frames directly).
 """
 
 from __future__ import annotations

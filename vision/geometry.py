@@ -1,4 +1,4 @@
-"""Geometry of the planar scala-tympani phantom and of the electrode array (SPEC §2–3).
+"""Geometry of the planar scala-tympani phantom and of the electrode array.
 
 Everything here lives in the *phantom frame*: millimetres, origin at the spiral centre,
 polar angle counter-clockwise from +x. The renderer and the measurement both use these
@@ -256,9 +256,10 @@ class Polyline:
         xy : ndarray, shape (m, 2)
             Query points (mm).
         theta : ndarray, shape (m,), optional
-            The points' angles (rad, SPEC unwrapped). When given, each point is projected onto
-            the part of the polyline within about half a turn of its own angle, so a point next
-            to the inner wall is not matched with the outer wall of the next turn in.
+            The points' angles (rad, unwrapped as :func:`point_angle` gives them). When given,
+            each point is projected onto the part of the polyline within about half a turn of its
+            own angle, so a point next to the inner wall is not matched with the outer wall of
+            the next turn in.
 
         Returns
         -------
@@ -344,7 +345,7 @@ def wall_polyline(phantom: Phantom, side: str) -> Polyline:
     -------
     Polyline
         Vertices (mm) and the backbone angle (rad) each belongs to. The corner at
-        ``branch_deg`` is handled as SPEC §2 says.
+        ``branch_deg`` is handled as the module docstring says.
     """
     if side not in ("outer", "inner"):
         raise ValueError(f"side must be 'outer' or 'inner', not {side!r}")
@@ -431,7 +432,7 @@ def channel_polygon(phantom: Phantom = DEFAULT_PHANTOM) -> np.ndarray:
 
 
 def point_angle(xy: np.ndarray, phantom: Phantom = DEFAULT_PHANTOM) -> np.ndarray:
-    """SPEC §2 angle (rad) of points in the phantom frame.
+    """The unwrapped angle (rad) of points in the phantom frame (docs/file-formats.md).
 
     ``theta = phi + 2 pi k`` with ``phi`` in (-pi, pi] the polar angle and ``k >= 0`` the
     integer for which the backbone radius at ``theta`` is closest to the point's radius

@@ -1,8 +1,8 @@
 """Synthetic overhead frames of the phantom with the electrode array, and their exact truth.
 
 The renderer runs the measurement backwards: geometry (:mod:`vision.geometry`) → image.
-Ground truth is computed from the very centreline that is drawn, with the SPEC definitions
-(:func:`vision.angles.contact_angles`).
+Ground truth is computed from the very centreline that is drawn, with the angles' definitions
+(docs/file-formats.md, :func:`vision.angles.contact_angles`).
 
 Pieces, from geometry to file:
 
@@ -120,7 +120,7 @@ class ArrayState:
     depth_mm : float
         Length (mm) of array past the entry's end at theta_start.
     truth : ContactAngles
-        SPEC angles of this centreline.
+        The angles of this centreline (as the measurement defines them).
     """
 
     centreline_mm: np.ndarray
@@ -174,7 +174,7 @@ def array_centreline(
     theta_tip : float
         Tip angle (rad), ``theta_start < theta_tip < theta_end``.
     theta_bot : float
-        Nominal contact start angle (rad), ``<= theta_tip``. The SPEC contact start of the
+        Nominal contact start angle (rad), ``<= theta_tip``. The true contact start of the
         result (``truth.theta_bot``) lies slightly basal of it, where the smooth departure's
         gap reaches ``contact_tol_mm``.
     shape : ArrayShape
@@ -222,9 +222,9 @@ def array_at_angles(
     tol_rad: float = 1e-4,
     max_iter: int = 20,
 ) -> ArrayState:
-    """Pose the array so that its *measured* (SPEC) tip and contact start angles are the given ones.
+    """Pose the array so that its *measured* tip and contact start angles are the given ones.
 
-    :func:`array_centreline` places the nominal angles; the SPEC truth of the result differs
+    :func:`array_centreline` places the nominal angles; the truth of the result differs
     slightly (the contact start lies where the departing edge's gap reaches the tolerance). This
     corrects the nominal angles until the truth matches, e.g. to render the paper's TABLE III.
 
@@ -571,7 +571,7 @@ class ChannelPath:
     def locate(self, xy_mm: np.ndarray, phantom: Phantom = DEFAULT_PHANTOM) -> tuple[float, float]:
         """Arc length (mm) and normal offset (mm) of a point in or near the channel.
 
-        The point is matched with the path within about half a turn of its SPEC angle, so a
+        The point is matched with the path within about half a turn of its (unwrapped) angle, so a
         point is never matched with a neighbouring turn; behind the entry the arc length is
         negative.
         """
@@ -1584,7 +1584,7 @@ def render_video(
 
 
 def spec_to_dict(spec: VideoSpec) -> dict:
-    """A JSON-ready dict of a :class:`VideoSpec` (pose keys as SPEC's registration JSON)."""
+    """A JSON-ready dict of a :class:`VideoSpec` (pose keys as in the registration JSON)."""
     d = asdict(spec)
     return json.loads(json.dumps(d, default=float))
 
