@@ -36,7 +36,7 @@ from pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic
 from vision.errors import InputError
 from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
 
-SPEC_REG_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
+REGISTRATION_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
 
 
 @pytest.fixture
@@ -155,7 +155,7 @@ def test_extract_video_rows_columns_and_failed_frames(tmp_path, fake_vision):
     bad = table[~table["ok"]]
     assert bad["frame"].tolist() == [3, 4] and bad["theta_tip"].isna().all() and (bad["reason"] == "no array in view").all()
     assert (table.loc[table["ok"], "reason"] == "").all()
-    assert reg.to_dict().keys() == SPEC_REG_KEYS and reg.n_frames == 5  # registered once, on 5 frames
+    assert reg.to_dict().keys() == REGISTRATION_KEYS and reg.n_frames == 5  # registered once, on 5 frames
     assert len(table.attrs["registrations"]) == 1 and table.attrs["timing_s"]["measure"] >= 0
 
 
@@ -337,7 +337,7 @@ def test_process_video_writes_resumes_and_overwrites(tmp_path, fake_vision):
     assert res["status"] == "ok" and res["n_frames"] == 8 and res["n_ok"] == 8
     files = output_paths(out, "t2")
     reg = json.loads(files["registration"].read_text())
-    assert SPEC_REG_KEYS <= reg.keys() and reg["registrations"][0]["frame"] == 0
+    assert REGISTRATION_KEYS <= reg.keys() and reg["registrations"][0]["frame"] == 0
     prov = json.loads(files["provenance"].read_text())
     assert prov["params"]["extract"]["register_frames"] == 5 and prov["n_frames"] == 8
     assert prov["input"]["hash"] == content_hash(video)

@@ -123,7 +123,7 @@ def test_paper_case_explains_the_drop(paper):
     drops = {r["speed_mm_s"]: r for r in d.peak_drop["by_speed"]}
     assert drops[7.5]["measured_pct"] == pytest.approx(43, abs=4)
     assert drops[3.0]["measured_pct"] == pytest.approx(24, abs=4)
-    assert abs(drops[7.5]["base_pct"]) < 3  # the SPEC model alone barely drops
+    assert abs(drops[7.5]["base_pct"]) < 3  # the paper's model alone barely drops
     assert 0.8 < d.peak_drop["explained_frac_fastest"] < 1.25
 
 
@@ -242,14 +242,14 @@ def test_fit_recovers_a_library_lag(prepared):
 # --------------------------------------------------------------------------- output
 
 
-def test_diagnosis_json_has_the_spec_keys(strong):
-    """The SPEC keys of diagnosis.json, on the strong lag (its verdict: ambiguous between the lag
-    and a squeezing film, see :func:`test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment`)."""
+def test_diagnosis_json_has_the_documented_keys(strong):
+    """The keys of diagnosis.json (docs/file-formats.md), on the strong lag (its verdict: ambiguous
+    between the lag and a squeezing film, see :func:`test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment`)."""
     _, d = strong["sensor_lag"]
     out = diagnosis_to_json(d, "x.csv")
     json.dumps(out, allow_nan=False)
     assert list(out)[:4] == ["verdict", "effect", "ranking", "gap"] and "heldout" in out
-    assert out["where"] == out["gap"]["where"] and out["by_speed"] == out["gap"]["by_speed"]  # both SPEC readings
+    assert out["where"] == out["gap"]["where"] and out["by_speed"] == out["gap"]["by_speed"]  # top level and gap
     assert out["verdict"] == "ambiguous" and out["effect"] is None
     for row in out["ranking"]:
         assert {"effect", "delta_bic", "heldout_rmse_g", "params"} <= set(row)

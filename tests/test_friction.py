@@ -121,7 +121,7 @@ def test_zero_contact_gives_zero_force():
 
 
 def test_forces_are_positive_on_realistic_arcs():
-    """SPEC's signs give F > 0 (pushing in) on realistic arcs (see pipeline/friction.py)."""
+    """The model's sign conventions give F > 0 (pushing in) on realistic arcs (see pipeline/friction.py)."""
     bot, tip = np.meshgrid(np.linspace(1.0, 2.6, 60), np.linspace(1.0, 4.0, 90))
     contact = tip > bot + 1e-9
     laws = [
@@ -197,7 +197,7 @@ def test_mirrored_phantom_frame_gives_the_same_force():
     _, x_w, _ = entry_frame(DEFAULT_PHANTOM)
     mirrored_points = _mirror(wall.points)
     # reflected angles: measured clockwise in the mirrored frame, a point keeps its angle, so the
-    # wall keeps its angle labels (SPEC angles are a property of the channel, not of the view)
+    # wall keeps its angle labels (the angles are a property of the channel, not of the view)
     clockwise = -np.unwrap(np.arctan2(mirrored_points[:, 1], mirrored_points[:, 0]))
     np.testing.assert_allclose(clockwise, np.unwrap(np.arctan2(wall.points[:, 1], wall.points[:, 0])), atol=1e-12)
     mirrored = ContactGeometry.from_wall(mirrored_points, wall.theta, _mirror(x_w[None, :])[0])

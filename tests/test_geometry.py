@@ -1,4 +1,4 @@
-"""Property tests of the phantom geometry (SPEC §2)."""
+"""Property tests of the phantom geometry (vision/geometry.py)."""
 
 import numpy as np
 import pytest
@@ -24,7 +24,8 @@ def test_eq1_branches_meet_at_100_degrees():
     corner = np.deg2rad(100.0)
     log_side = float(backbone_radius(np.nextafter(corner, 0.0)))
     exp_side = float(backbone_radius(corner))
-    # SPEC: "to 1e-4 mm"; with the stated constants the mismatch is 1.15e-4 mm
+    # the two branches of Eq. (1) meet to about 1e-4 mm: with the default constants the mismatch is
+    # 1.15e-4 mm
     assert abs(log_side - exp_side) < 1.5e-4
     assert exp_side == pytest.approx(3.298, abs=1e-3)
 

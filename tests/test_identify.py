@@ -97,7 +97,7 @@ def test_statistics_are_consistent(white_fit):
     assert fit.starts["best"].sum() == 1
 
 
-def test_fit_json_has_spec_keys(white_fit):
+def test_fit_json_has_the_main_keys(white_fit):
     _, fit = white_fit
     doc = json.loads(json.dumps(fit_to_json(fit)))
     assert {"params", "correlation", "aic", "bic", "n", "rmse_g", "by_speed"} <= set(doc)

@@ -278,7 +278,7 @@ def _render_frames(path: Path, spec, scenes, hide=(), blank=()) -> pd.DataFrame:
 
 def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
     """A barrel lens (OpenCV k1 = -0.3 at f = 520 px: straight lines bow by up to ~9 px at the
-    frame's edge) bends the walls off SPEC's similarity; with --calibration the registration
+    frame's edge) bends the walls off the registration's similarity; with --calibration the registration
     sees undistorted frames and the measurement samples where the lens put its points, and the
     tip comes out as on an ideal camera (measured |theta_tip error|: median 0.0095 rad plain,
     0.0014 calibrated; max 0.023 and 0.040, both on frame 10). A calibration of another
@@ -530,7 +530,7 @@ def test_force_log_with_wrong_units(logs, reference_sync, tmp_path, capsys):
     manifest, forces = _copy_logs(logs, tmp_path)
     (good, _), (bad, f_bad) = forces.items()
     text = f_bad.read_text()
-    # a unit the SPEC does not know: refused, naming the file and the header line
+    # a unit tympani does not know: refused, naming the file and the header line
     f_bad.write_text(text.replace("time_s,force_g", "time_ms,force_g", 1))
     out = tmp_path / "synced.csv"
     code, _, err = _sync(capsys, manifest, out)

@@ -53,7 +53,7 @@ def test_samples_manifest_is_relative_and_complete():
 
 def test_run_on_samples_writes_every_output_and_the_report(samples_run):
     """Every output of ``tympani run`` on the samples, and the diagnosis the samples decide: they
-    follow the SPEC model with no hidden effect (measured: no_gap; held-out RMSE 0.0938 g, the
+    follow the paper's model with no hidden effect (measured: no_gap; held-out RMSE 0.0938 g, the
     best effect 0.0929 g, +1 %)."""
     status, out = samples_run
     assert status == 0

@@ -53,14 +53,14 @@ def test_backbone_branches_meet_at_100_deg_and_width_law():
     r2 = ph.a * math.exp(-ph.b * phi)
     assert abs(r1 - r2) < 1e-3 and abs(r1 - 3.298) < 2e-3
     th = np.linspace(ph.theta_start, ph.theta_end, 500)
-    w = ph.width(th)  # the FULL channel width of SPEC section 2
+    w = ph.width(th)  # the FULL channel width, as in vision/geometry.py
     np.testing.assert_allclose(w, np.minimum(1.5, 0.38 * ph.r(th)))
     np.testing.assert_allclose(ph.half_width(th), w / 2)
     assert w.max() == 1.5 and w.min() < 0.8
 
 
 def test_walls_lie_half_the_channel_width_from_the_backbone():
-    """SPEC section 2: walls are offset by w/2 each side, w = min(1.5, 0.38 r) the full width."""
+    """The phantom's walls are offset by w/2 each side, w = min(1.5, 0.38 r) the full width."""
     g = sb.geometry()
     ph = g.phantom
     th = np.linspace(ph.theta_start + 0.05, sb.THETA_LOOKUP_MAX - 0.1, 2000)  # look-up range
@@ -73,8 +73,8 @@ def test_walls_lie_half_the_channel_width_from_the_backbone():
     p0, _, n0 = sb._backbone(ph, np.array([ph.theta_start + 0.05]))
     sd_o, _ = g.outer.signed_distance(p0 - 0.75 * n0)
     assert abs(sd_o[0] + 1.5) < 1e-3
-    # neighbouring turns keep a wall of at least 0.15 mm between them (SPEC's own check;
-    # with w read as the half width the turns would overlap)
+    # neighbouring turns keep a wall of at least 0.15 mm between them (a check on the phantom's
+    # constants; with w read as the half width the turns would overlap)
     from scipy.spatial import cKDTree
 
     inner_1 = g.inner.xy[(g.inner.theta >= ph.theta_start) & (g.inner.theta <= 2 * math.pi)]
@@ -83,8 +83,8 @@ def test_walls_lie_half_the_channel_width_from_the_backbone():
     assert 0.15 <= gap < 0.25
 
 
-def test_array_riding_the_outer_wall_reaches_spec_angle_at_15_mm():
-    """SPEC section 2: an array riding the outer wall reaches theta_tip 3.8-4.0 at 15 mm."""
+def test_array_riding_the_outer_wall_reaches_about_4_rad_at_15_mm():
+    """An array riding the outer wall reaches theta_tip 3.8-4.0 at 15 mm (docs/paper.md, TABLE III)."""
     g = sb.geometry()
     x = g.rider_out.at(np.array([15.0]))
     th = float(sb.point_theta(x[:, 0], x[:, 1])[0])
