@@ -125,17 +125,17 @@ def test_random_ensemble_measures_nearly_every_frame(ensemble: list[dict]) -> No
 
 
 def test_random_ensemble_accuracy(ensemble: list[dict]) -> None:
-    """Acceptance: median |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.08 rad.
+    """Acceptance: median |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.08 rad, with
+    regression guards at about twice the measured figures.
 
-    When written (48 frames): theta_tip median 0.0007 rad, p90 0.0015, max 0.0025; theta_bot
-    median 0.0066 rad, p90 0.044, max 0.077 (frames with contact: median 0.012, p90 0.053).
+    Measured (48 frames): theta_tip median 0.0006 rad, p90 0.0015, max 0.0026; theta_bot
+    median 0.0060 rad, p90 0.048, max 0.11.
     """
     tip, bot = _errors(ensemble)
     assert np.median(tip) <= 0.02
     assert np.median(bot) <= 0.08
-    # regression guards, looser than the figures reached
-    assert np.percentile(tip, 90) <= 0.02
-    assert np.percentile(bot, 90) <= 0.2
+    assert np.percentile(tip, 90) <= 0.003 and tip.max() <= 0.006
+    assert np.percentile(bot, 90) <= 0.1 and bot.max() <= 0.22
 
 
 def test_random_ensemble_clean_frames(ensemble: list[dict]) -> None:
@@ -188,17 +188,11 @@ def test_scale_floor_refuses_every_frame_below_it() -> None:
 
 def test_high_magnification_ensemble() -> None:
     """Zoomed-in cameras: 36 random 1280x960 frames at 36-68 px/mm (seed 7), every one measured,
-    with |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.2 rad on each, and the batch
-    equal to the per-frame measurement.
-
-    A band's border spans a length in mm along the channel, not a count of stations. Before the
-    fluid estimate left out ``MeasureConfig.band_border_mm`` either side of it (2 coarse stations
-    only), band brightness entered the fluid level at 62 and 65 px/mm, and two of these frames
-    had their tip 0.72 and 0.15 rad too far on. When written: theta_tip median 0.0012 rad (max
-    0.0027), theta_bot median 0.0097 rad (p90 0.058, max 0.070); 96 such frames gave maxima
-    of 0.0031 and 0.099 rad (with steps of 1 px at every scale, before
-    ``MeasureConfig.min_step_mm``: 0.0007 / 0.0016 / 0.0058 / 0.066, and 96 frames 0.0023 and
-    0.069).
+    and the batch equal to the per-frame measurement. A band's border spans a length in mm
+    along the channel, not a count of stations (``MeasureConfig.band_border_mm``): counted in
+    stations, band brightness enters the fluid level at 60+ px/mm and the tip runs on.
+    Measured: theta_tip median 0.0012 rad, max 0.0027; theta_bot median 0.011 rad, p90 0.063,
+    max 0.11. The guards are about twice these.
     """
     rng = np.random.default_rng(7)
     tip, bot = [], []
@@ -215,9 +209,9 @@ def test_high_magnification_ensemble() -> None:
         assert b.ok and abs(b.theta_tip - m.theta_tip) < 1e-9 and abs(b.theta_bot - m.theta_bot) < 1e-9
         tip.append(abs(m.theta_tip - state.truth.theta_tip))
         bot.append(abs(m.theta_bot - state.truth.theta_bot))
-    assert max(tip) <= 0.02, np.argmax(tip)
-    assert max(bot) <= 0.2, np.argmax(bot)
-    assert np.median(bot) <= 0.04
+    assert max(tip) <= 0.006, np.argmax(tip)
+    assert max(bot) <= 0.22, np.argmax(bot)
+    assert np.median(bot) <= 0.025
 
 
 ZOOMED_CLEAN = [  # (pose, appearance, depth mm, policy): clean 1920x1440 frames, random draws of seed 8
@@ -723,11 +717,11 @@ def test_doubled_walls_do_not_lead_the_tip_into_the_next_turn() -> None:
     """Walls that show twice (0.15-0.45 mm apart, 30-90 % contrast), 12 random poses, depths 6,
     10 and 14 mm, registered from the frame. A wall line that the tip touches can continue its
     dark run along the channel into the next turn (the tip then reads 2pi + ... too far); the
-    tip stretch must look like the array (its inner edge found, its centre line as dark as the
-    array, not darker) or the frame is refused. Measured (seeds 800-811): 26 of 36 frames
-    measured, theta_tip median 0.0012 rad, max 0.22 rad; theta_bot median 0.011 rad, one frame
-    1.78 rad off (the second wall line inside the channel biases the gaps). Before the tip
-    checks frame 802 at 14 mm read 7.6 rad too far."""
+    tip stretch must look like the array (its inner edge found, its centre line clear of the
+    walls) or the frame is refused. Measured (seeds 800-811): 27 of 36 frames measured,
+    theta_tip median 0.0012 rad, max 0.22 rad; theta_bot median 0.012 rad, one frame 1.78 rad
+    off (the second wall line inside the channel biases the gaps). Without the tip checks frame
+    802 at 14 mm reads 7.6 rad too far."""
     from vision.registration import register
 
     tip_err, bot_err, measured = [], [], 0

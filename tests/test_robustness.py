@@ -331,10 +331,11 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
 
 def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
     """An array 15 % wider than the modelled one (0.69 and 1.38 mm) puts its edges off the model:
-    every gap, and so theta_bot, is biased. The extraction says so (its edges are 17 % apart
-    beyond the model's: a one-line warning, the ratio in the registration JSON), and with
-    --array-diameters the gaps and theta_bot come right (measured: theta_bot median error 0.66
-    rad without, 0.038 with)."""
+    every gap is biased. The extraction says so (its edges are 17 % apart beyond the model's: a
+    one-line warning, the ratio in the registration JSON), and with --array-diameters the gaps
+    come right. Here the contact rule's allowance for a gap bias (up to 0.1 mm) absorbs most of
+    the error: measured theta_bot median error 0.054 rad without the diameters, 0.038 with
+    (without the allowance: 0.66 rad)."""
     from dataclasses import replace
 
     from vision.geometry import DEFAULT_ARRAY, CameraPose
@@ -364,7 +365,7 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
         assert table["ok"].all()
         bot_error[name] = float((table["theta_bot"] - table["theta_bot_true"]).abs().median())
     assert 1.12 < ratio["modelled"] < 1.22 and 0.97 < ratio["given"] < 1.06  # measured 1.171 and 1.016
-    assert bot_error["given"] < 0.08 and bot_error["given"] < bot_error["modelled"] / 4
+    assert bot_error["given"] < 0.08 and bot_error["modelled"] < 0.11
 
 
 def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):

@@ -330,18 +330,18 @@ class MeasureConfig:
         is not the array's body: a bubble's rim, a shadow, a doubled wall line).
     tip_width_mm : float
         Length (mm) before the tip over which the array must show as the array: its inner edge
-        found (``tip_inner_min``) and its centre line no darker than the array's body
-        (``tip_dark_max``). A frame whose dark run ends in something else (a doubled wall line
-        followed into the next turn) is not measured.
+        found (``tip_inner_min``) and its centre line clear of the walls (``tip_wall_share``). A
+        frame whose dark run ends in something else (a doubled wall line followed into the next
+        turn) is not measured.
     tip_inner_min : float
-        Least share of the tip stretch's stations (``tip_width_mm``) where the array's inner edge
-        (the one away from the outer wall, which it shows in contact too) is found; a frame with
-        fewer is not measured. On 150 random frames with doubled walls, every frame under 0.1 was
-        wrong (a wall line followed past the tip) and the correct ones had 0.17 or more.
-    tip_dark_max : float
-        See ``tip_width_mm``: largest median coverage (1: the array body's level) of the tip
-        stretch's centre line. Over 400 correct random frames with doubled walls the median
-        coverage was 1.00 (p90 1.32); wall lines followed past the tip read 2.1-2.6.
+        Least share of the tip stretch's stations where the array's inner edge (the one away
+        from the outer wall, which it shows in contact too) is found. On 150 random frames with
+        doubled walls, every frame under 0.1 was wrong (a wall line followed past the tip) and
+        the correct ones had 0.17 or more.
+    tip_wall_share : float
+        A frame whose tip stretch has its centre line closer to a wall than half the array's
+        radius at this share of its measured stations or more is not measured: the array cannot
+        cross a wall, a wall line followed past the tip lies there.
     cap_min : float
         Stations of the rounded tip closer to the tip than this fraction of its radius are not
         used for edges (farther cap stations are, with the half disc's width).
@@ -395,8 +395,8 @@ class MeasureConfig:
     plateau_px: tuple[float, float] = (2.5, 4.0)
     tip_reach_mm: float = 1.5
     tip_width_mm: float = 2.0
-    tip_dark_max: float = 1.8
     tip_inner_min: float = 0.1
+    tip_wall_share: float = 0.5
     cap_min: float = 0.4
     angle_step_mm: float = 0.1
     min_tip_px: float = 8.5
@@ -986,50 +986,6 @@ def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: n
             last = np.flatnonzero(dark[:stop])
         return (min(int(last[-1]), end) if len(last) else -1), stop
     return end, None
-
-
-def _dark_tips(edges: list, live: np.ndarray, rg: "_Ragged", v_c: np.ndarray, near: np.ndarray, half: np.ndarray,
-                 u0: float, du: float, min_count: int, dark_max: float) -> np.ndarray:
-    """Which frames' tip stretch is darker along its centre line than the array's body, shape
-    (len(live),), bool.
-
-    Parameters
-    ----------
-    edges : list of _Edges
-        Each frame's stage-2 result (indexed by ``live``).
-    live : ndarray of int
-        The frames of ``rg``'s rows.
-    rg : _Ragged
-        The frames' stations.
-    v_c : ndarray
-        Centre-line offset (mm) at each station.
-    near : ndarray of bool
-        The stations of the tip stretch with measured edges.
-    half : ndarray
-        The channel's half width (mm) at each station.
-    u0, du : float
-        The fine strip's first normalised offset and its step.
-    min_count : int
-        Fewest such stations for a verdict (fewer: False).
-    dark_max : float
-        Largest median coverage (1: the array body's level).
-
-    Returns
-    -------
-    ndarray of bool
-        True where the median coverage of those stations' centre line exceeds ``dark_max`` (a
-        wall line is darker than the array; the array's own centre line can be lighter than its
-        body, with bands and a cylinder's highlight, so nothing is asked of a light one).
-    """
-    out = np.zeros(len(live), bool)
-    counts = rg.count(near)
-    for b in np.flatnonzero(counts >= min_count).tolist():
-        k = np.flatnonzero(near[rg.start[b]: rg.start[b] + rg.n[b]])
-        e = edges[int(live[b])]
-        j = np.clip(np.rint((v_c[rg.start[b] + k] / half[rg.start[b] + k] - u0) / du).astype(int), 0, e.fine.shape[0] - 1)
-        cover = (e.fluid[k] - e.fine[j, k]) / e.contrast[k]
-        out[b] = np.median(cover) > dark_max
-    return out
 
 
 def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
@@ -2229,9 +2185,12 @@ def _centre_line_batch(plan: MeasurePlan, edges: list[_Edges]) -> list[_CentreLi
     good &= ~((n_both >= 10) & (rg.count(fits & both) / np.maximum(n_both, 1) < 0.5))
     stretch_tip = before & (s <= cfg.tip_width_mm)
     min_count = int(np.ceil(0.25 * cfg.tip_width_mm / step))
-    odd = _dark_tips(edges, live, rg, v_c, measured & stretch_tip, half, u0, du, min_count, cfg.tip_dark_max)
     n_tip = rg.count(stretch_tip)
-    odd |= (n_tip >= min_count) & (rg.count(ok_in & stretch_tip) < cfg.tip_inner_min * n_tip)
+    odd = (n_tip >= min_count) & (rg.count(ok_in & stretch_tip) < cfg.tip_inner_min * n_tip)
+    # a centre line closer to a wall than half the array's radius: the array would cross it
+    n_meas = rg.count(measured & stretch_tip)
+    in_wall = measured & stretch_tip & ((half - np.abs(v_c)) < 0.5 * radius)
+    odd |= (n_meas >= min_count) & (rg.count(in_wall) >= cfg.tip_wall_share * n_meas)
     for b in np.flatnonzero(good & ~bare & odd):
         out[int(live[b])] = f"the dark run's last {cfg.tip_width_mm:g} mm does not look like the array (a line?)"
     keep = np.flatnonzero(good & ~bare & ~odd)
