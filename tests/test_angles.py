@@ -302,7 +302,7 @@ def test_representative_triples(theta_bot: float, theta_con: float, theta_tip: f
 @pytest.mark.parametrize("frame", range(6))
 def test_table_iii_triples_are_measured_back(frame: int) -> None:
     """The six (theta_bot, theta_con, theta_tip) of the paper's TABLE III (its Fig. 8), rendered so
-    that their SPEC truth is exactly the table's (:func:`vision.rendering.array_at_angles`), each at
+    that their true angles are exactly the table's (:func:`vision.rendering.array_at_angles`), each at
     three random poses and looks (nuisance 0, 0.4, 0.8), registered from the frame itself and
     measured: every |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.08 rad against the
     table. All six fit the planar phantom; the last two (theta_tip 4.38 and 4.47 rad) need 16.1
@@ -361,7 +361,7 @@ def test_hidden_array(scene: tuple[Scene, CameraPose, MeasurePlan]) -> None:
 
 def test_not_inserted_yet(scene: tuple[Scene, CameraPose, MeasurePlan]) -> None:
     """Tip behind the entry's outer end: not ok. Tip inside the entry channel: ok, with
-    theta_tip = phi (SPEC §2, k = 0, below theta_start) and no contact."""
+    theta_tip = phi (k = 0, below theta_start) and no contact."""
     sc, _, plan = scene
     outside = measure_frame(_gray(sc.render(pose_at_depth(-7.0))), plan)
     assert not outside.ok and outside.reason == "array not in channel"

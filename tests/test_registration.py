@@ -32,7 +32,7 @@ from vision.registration import (
 )
 from vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
 
-SPEC_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
+POSE_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
 
 
 def _errors(found: CameraPose, truth: CameraPose) -> tuple[float, float, float]:
@@ -393,16 +393,16 @@ def test_registration_to_dict_has_the_spec_keys_and_round_trips():
     pose, frame, _ = _render(rng, 0.3)
     reg = register([frame])
     d = reg.to_dict()
-    assert SPEC_KEYS <= set(d)
+    assert POSE_KEYS <= set(d)
     json.dumps(d)  # JSON-ready
     back = Registration.from_dict(json.loads(json.dumps(d)))
     numbers = (float(d[k]) for k in ("centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm"))
     assert back.pose == CameraPose(*numbers, d["mirrored"])
     assert back.residual_px == pytest.approx(reg.residual_px)
     assert back.line_half_width_px == pytest.approx(reg.line_half_width_px)
-    minimal = Registration.from_dict({k: d[k] for k in SPEC_KEYS})
+    minimal = Registration.from_dict({k: d[k] for k in POSE_KEYS})
     assert minimal.pose == back.pose
-    # SPEC keys alone are enough to check a frame (without the line half width, the walls'
+    # the pose keys alone are enough to check a frame (without the line half width, the walls'
     # edges are expected on the walls themselves, so the residual grows by about it)
     assert check(frame, minimal) < reg.residual_px + abs(reg.line_half_width_px) + 0.5
     assert wall_fit(frame, back).inlier_fraction > 0.8

@@ -1,6 +1,6 @@
-"""The array's angles: theta_tip, theta_bot and theta_con (SPEC §3), and their measurement.
+"""The array's angles theta_tip, theta_bot and theta_con, and their measurement.
 
-:func:`contact_angles` applies the SPEC definitions to an array centreline given in the
+The angles are defined in docs/how-it-works.md. :func:`contact_angles` applies the definitions to an array centreline given in the
 phantom frame. The renderer uses it to compute ground truth from the geometry it draws; the
 measurement uses it on the centreline it finds in a frame, so both answer the same question.
 
@@ -52,7 +52,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ContactAngles:
-    """The three SPEC §3 angles (rad) and where they are.
+    """The three angles (rad) and where they are.
 
     Parameters
     ----------
@@ -83,7 +83,7 @@ def outer_wall_gap(
     phantom : Phantom
         Phantom configuration.
     theta : ndarray, shape (n,), optional
-        The points' SPEC angles (rad); computed when not given.
+        The points' angles (rad, unwrapped); computed when not given.
 
     Returns
     -------
@@ -106,7 +106,7 @@ def contact_angles(
     gap_mm: np.ndarray | None = None,
     theta: np.ndarray | None = None,
 ) -> ContactAngles:
-    """SPEC §3 angles of an array given by its centreline, tip first.
+    """The angles of an array given by its centreline, tip first.
 
     Parameters
     ----------
@@ -121,7 +121,7 @@ def contact_angles(
     gap_mm : ndarray, shape (n,), optional
         Gaps (mm) if already known (e.g. measured); otherwise :func:`outer_wall_gap`.
     theta : ndarray, shape (n,), optional
-        The points' SPEC angles (rad) if already known (the measurement computes them with
+        The points' angles (rad, unwrapped) if already known (the measurement computes them with
         precomputed constants, see :func:`_spiral_angle`); otherwise
         :func:`vision.geometry.point_angle`.
 
@@ -196,7 +196,7 @@ def contact_angles(
 #    fits (unbiased next to bands and the tip, where only one side has data) and carried
 #    across bands and the last of the tip cap;
 # 4. angles: contact_angles() on the measured centre line with the measured gaps, so the
-#    SPEC definitions are applied by the same code that computes the renderer's truth.
+#    angle definitions are applied by the same code that computes the renderer's truth.
 
 
 class _HasPose(Protocol):
@@ -211,7 +211,7 @@ class MeasureConfig:
     ----------
     contact_tol_mm : float
         Largest gap (mm) between the array's outer edge and the outer wall that counts as
-        contact (SPEC §3).
+        contact.
     contact_persist_mm : float
         An excursion of the measured gap above ``contact_tol_mm`` shorter than this (mm, along
         the array), after which contact holds again for as long, is measurement noise and does
@@ -413,7 +413,7 @@ class FrameMeasurement:
     reason : str
         Why not (``''`` when ``ok``).
     theta_tip, theta_bot, theta_con : float
-        SPEC §3 angles (rad); NaN when not ``ok``.
+        The angles (rad); NaN when not ``ok``.
     tip_mm, bot_mm : ndarray, shape (2,), or None
         Tip and contact start on the centre line (mm, phantom frame).
     centreline_mm : ndarray, shape (n, 2), or None
@@ -503,7 +503,7 @@ def _angle_table(phantom: Phantom) -> _AngleTable:
 
 
 def _spiral_angle(xy: np.ndarray, t: _AngleTable) -> np.ndarray:
-    """SPEC §2 angles (rad) of points ``xy`` (mm, shape (n, 2)): the same arithmetic as
+    """Unwrapped angles (rad) of points ``xy`` (mm, shape (n, 2)): the same arithmetic as
     :func:`vision.geometry.point_angle`, with the phantom's constants precomputed in ``t``.
 
     Candidates clipped to [theta_start, theta_end] (> phi0) keep the logarithm finite, so no
@@ -563,7 +563,7 @@ class MeasurePlan:
     in_view : ndarray, shape (stations,), bool
         Stations whose interior samples all lie inside the image.
     angles : _AngleTable
-        The phantom's constants for the SPEC angles of measured points.
+        The phantom's constants for the angles of measured points.
     r_tip_mm : float
         The array's radius (mm) at its tip.
     refusal : str or None
@@ -2342,7 +2342,7 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     depth = np.add.reduceat(np.append(seg, 0.0), cl.start)
     basal = los + keep[kept.start + kept.n - 1]  # a line that starts in the entry: less its part there
     depth -= np.maximum(plan.p_mm[plan.i_start] - plan.p_mm[basal], 0.0)
-    entry = los + tip_f < plan.i_start  # tip in the entry channel: theta = phi (SPEC §2), no contact
+    entry = los + tip_f < plan.i_start  # tip in the entry channel: theta = phi (k = 0), no contact
     theta_bot = np.where(entry, theta_tip, theta_bot)
     bot = np.where(entry[:, None], tip_mm, bot)
     depth = np.where(entry, -(plan.p_mm[plan.i_start] - plan.p_mm[los] - tip_f * step), depth)
@@ -2379,7 +2379,7 @@ def measure_frame(
     array: ElectrodeArray = DEFAULT_ARRAY,
     cfg: MeasureConfig = MeasureConfig(),
 ) -> FrameMeasurement:
-    """Measure theta_tip, theta_bot and theta_con (SPEC §3) in one frame.
+    """Measure theta_tip, theta_bot and theta_con in one frame (defined in docs/how-it-works.md).
 
     Parameters
     ----------
@@ -2412,7 +2412,7 @@ def measure_frame(
 
     Notes
     -----
-    A tip in the entry channel (behind ``theta_start``) gives ``ok=True``: SPEC §2 gives such
+    A tip in the entry channel (behind ``theta_start``) gives ``ok=True``: the angle definitions give such
     points ``theta = phi`` (k = 0), so theta_tip is defined there (and below
     ``theta_start``); contact counts against the spiral's outer wall only, so then
     ``theta_bot = theta_tip`` and ``theta_con = 0``.

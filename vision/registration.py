@@ -1,4 +1,4 @@
-"""Registration: where the phantom is in the image (SPEC §2 "What a frame shows").
+"""Registration: where the phantom is in the image (see docs/how-it-works.md).
 
 The camera looks straight down, so phantom and image differ by a similarity: centre,
 rotation, scale and possibly a mirror (:class:`vision.geometry.CameraPose`). :func:`register`
@@ -212,7 +212,7 @@ class Registration:
     walls_doubled : bool
         Whether every wall showed twice, the second copy shifted by one image vector
         (``parallax_px``): the top and bottom edges of a thick plate's walls seen at an angle
-        (SPEC §2 "What a frame shows"). ``pose`` is then that of the *first copy*, the one
+        (see docs/how-it-works.md). ``pose`` is then that of the *first copy*, the one
         with the stronger edges (the second copy is a fainter replica), and the residual,
         inlier and check statistics count an edge of either copy. The copies are told apart
         where they are resolved: about 1 px for wall lines (the union of two overlapping
@@ -249,7 +249,7 @@ class Registration:
         return float(math.hypot(*self.parallax_px)) / float(self.pose.px_per_mm)
 
     def to_dict(self) -> dict:
-        """SPEC §6 registration keys plus the fit statistics and the doubled walls (JSON-ready):
+        """The registration JSON's keys (docs/file-formats.md) plus the fit statistics and the doubled walls (JSON-ready):
         ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
         ``wall_parallax_y_px`` and ``second_copy_contrast`` (NaN when unknown)."""
         p = self.pose
@@ -276,7 +276,7 @@ class Registration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Registration":
-        """Inverse of :meth:`to_dict`; only the SPEC §6 keys are required."""
+        """Inverse of :meth:`to_dict`; only the six pose keys are required."""
         pose = CameraPose(
             float(d["centre_x_px"]),
             float(d["centre_y_px"]),
