@@ -1,7 +1,7 @@
 """The array's angles theta_tip, theta_bot and theta_con, and their measurement.
 
-The angles are defined in docs/how-it-works.md. :func:`contact_angles` applies the definitions to an array centreline given in the
-phantom frame. The renderer uses it to compute ground truth from the geometry it draws; the
+The angles are defined in docs/how-it-works.md. :func:`contact_angles` applies the definitions to
+an array centreline given in the phantom frame. The renderer uses it to compute ground truth from the geometry it draws; the
 measurement uses it on the centreline it finds in a frame, so both answer the same question.
 
 Per frame (:func:`measure_frame`): greyscale frame + registration → straightened channel →
