@@ -1,8 +1,9 @@
 """The array's angles theta_tip, theta_bot and theta_con, and their measurement.
 
 The angles are defined in docs/how-it-works.md. :func:`contact_angles` applies the definitions to
-an array centreline given in the phantom frame. The renderer uses it to compute ground truth from the geometry it draws; the
-measurement uses it on the centreline it finds in a frame, so both answer the same question.
+an array centreline given in the phantom frame. The renderer uses it to compute ground truth from
+the geometry it draws; the measurement uses it on the centreline it finds in a frame, so both
+answer the same question.
 
 Per frame (:func:`measure_frame`): greyscale frame + registration → straightened channel →
 the array's dark run, tip, edges and gap to the outer wall → :func:`contact_angles`. Build
