@@ -91,15 +91,6 @@ def test_clean_frames_centre_within_1px_scale_1pct_rotation_half_degree(clean_ru
         assert reg.inlier_fraction > 0.9 and reg.residual_px < 1.0
 
 
-def test_registration_takes_well_under_a_second(clean_runs):
-    """A sanity bound, not the speed figure (that is `tympani bench`): a registration of a
-    640x480 view takes about 0.05-0.1 s on one core once the coarse search's templates are
-    cached (edges ~7 ms, coarse search ~21 ms, refinement and verification ~10 ms, 5-frame
-    merge ~4 ms on the bench video). The bound is loose for busy CI machines."""
-    times = np.array([dt for _, _, dt, _ in clean_runs])
-    assert np.median(times) < 0.6, times
-
-
 def test_frames_with_nuisances_centre_within_2px_scale_2pct_mirror_right():
     """10 views with random_nuisance(0.5–1.0): noise, blur, uneven light, flicker, JPEG,
     screws, rulers, gripper.
@@ -356,8 +347,8 @@ def test_frames_without_a_phantom_raise(name):
 # --------------------------------------------------------------------------- check, JSON
 
 
-def test_check_is_cheap_and_flags_a_bumped_camera():
-    """Measured (region walls, 37 px/mm): check 4 ms CPU; residual 0.45 px at registration
+def test_check_flags_a_bumped_camera():
+    """Measured (region walls, 37 px/mm): residual 0.45 px at registration
     and on a later frame of the same view; 3.0 px after a 5 px shift, 3.9 px after an 8 px
     shift, 5 px (the cap) after a 3° turn about the spiral centre (which the self-similar
     spiral alone would hide: the entry and first half-turn give it away). Over 12 whole
@@ -371,12 +362,6 @@ def test_check_is_cheap_and_flags_a_bumped_camera():
     later = scene.render(pose_at_depth(9.0))
     same = check(later, reg)
     assert same <= max(1.0, 2.0 * reg.residual_px)
-    check(later, reg)
-    t0 = time.process_time()
-    for _ in range(20):
-        check(later, reg)
-    per_call = (time.process_time() - t0) / 20
-    assert per_call < 0.025, per_call
     for dx, dy, dr in [(5.0, 0.0, 0.0), (0.0, -8.0, 0.0), (0.0, 0.0, math.radians(3.0))]:
         bumped = CameraPose(
             pose.centre_x_px + dx, pose.centre_y_px + dy, pose.rotation_rad + dr, pose.px_per_mm, pose.mirrored
@@ -388,7 +373,7 @@ def test_check_is_cheap_and_flags_a_bumped_camera():
     assert check(later, Registration(gone, residual_px=0.0)) == float("inf")
 
 
-def test_registration_to_dict_has_the_spec_keys_and_round_trips():
+def test_registration_to_dict_has_the_pose_keys_and_round_trips():
     rng = np.random.default_rng(909)
     pose, frame, _ = _render(rng, 0.3)
     reg = register([frame])
