@@ -143,7 +143,7 @@ def fit_insertion(time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfi
         return np.column_stack([ramp, ramp * t, below, above]).astype(float)
 
     p0 = np.array([d0, v, lo0, max(hi0, lo0 + 1e-6)])
-    res = least_squares(residual, p0, jac=jacobian, loss="cauchy", f_scale=scale,
+    res = least_squares(residual, p0, jac=jacobian, loss="cauchy", f_scale=scale, xtol=1e-6, ftol=1e-6,
                         bounds=([-np.inf, 0.0, -np.inf, -np.inf], [np.inf, np.inf, np.inf, np.inf]))
     p = res.x if res.success else p0
     lo, hi = float(min(p[2], p[3])), float(max(p[2], p[3]))
