@@ -908,6 +908,73 @@ def _dark_runs(dark: np.ndarray) -> np.ndarray:
     return np.where(dark, at - last_false, 0)
 
 
+def _compact(x: np.ndarray, y: np.ndarray, w: np.ndarray, h: np.ndarray, area: np.ndarray, m: int,
+             n: np.ndarray | int, step_mm: float, offset_mm: np.ndarray | float, cfg: MeasureConfig) -> np.ndarray:
+    """Which bright components could be a bubble's interior: enclosed in their window (``m``
+    offsets × ``n`` stations; not touching its border), of a bubble's size, fill and aspect.
+
+    Parameters
+    ----------
+    x, y, w, h, area : ndarray of int
+        Bounding boxes (station, offset) and pixel counts of the components, in their window.
+    m : int
+        Offsets of the windows.
+    n : ndarray of int or int
+        Stations of each component's window.
+    step_mm : float
+        Station spacing (mm).
+    offset_mm : ndarray or float
+        Offset spacing (mm) of each component's window.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    ndarray of bool
+    """
+    len_mm, wid_mm = w * step_mm, h * offset_mm
+    return ((x > 0) & (x + w < n) & (y > 0) & (y + h < m) & (area * (step_mm * offset_mm) >= cfg.bubble_min_mm2)
+            & (np.maximum(len_mm, wid_mm) <= 2.0 * cfg.bubble_max_mm)
+            & (area >= cfg.bubble_fill[0] * w * h) & (area <= cfg.bubble_fill[1] * w * h)
+            & (len_mm <= cfg.bubble_aspect * wid_mm) & (wid_mm <= cfg.bubble_aspect * len_mm))
+
+
+def _with_compact(brights: list[np.ndarray], step_mm: float, offset_mm: np.ndarray, cfg: MeasureConfig) -> np.ndarray:
+    """Which of the windows ``brights`` (each offsets × stations, bool) hold a :func:`_compact`
+    component: all windows labelled in one call, side by side with an empty column between.
+
+    Parameters
+    ----------
+    brights : list of ndarray of bool
+        Each frame's bright pixels (same number of rows).
+    step_mm : float
+        Station spacing (mm).
+    offset_mm : ndarray
+        Offset spacing (mm) of each window.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    ndarray of bool, shape (len(brights),)
+    """
+    out = np.zeros(len(brights), bool)
+    if not brights:
+        return out
+    m = brights[0].shape[0]
+    widths = np.array([b.shape[1] for b in brights])
+    starts = np.concatenate([[0], np.cumsum(widths + 1)[:-1]])
+    canvas = np.zeros((m, int(starts[-1] + widths[-1])), np.uint8)
+    for s0, b in zip(starts.tolist(), brights):
+        canvas[:, s0: s0 + b.shape[1]] = b
+    _, _, stats, _ = cv2.connectedComponentsWithStats(canvas, connectivity=4)
+    x, y, w, h, area = (stats[1:, k] for k in range(5))
+    f = np.searchsorted(starts, x, side="right") - 1
+    compact = _compact(x - starts[f], y, w, h, area, m, widths[f], step_mm, offset_mm[f], cfg)
+    out[f[compact]] = True
+    return out
+
+
 def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
                 step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
     """Where the array ends when an air bubble sits at or ahead of its tip.
@@ -954,12 +1021,8 @@ def _bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: n
     count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=4)
     m, n = cover.shape
     x, y, w, h, area = (stats[1:, k] for k in range(5))
-    len_mm, wid_mm = w * step_mm, h * offset_mm
-    px_mm2 = step_mm * offset_mm
-    compact = ((x > 0) & (x + w < n) & (y > 0) & (y + h < m) & (area * px_mm2 >= cfg.bubble_min_mm2)
-               & (np.maximum(len_mm, wid_mm) <= 2.0 * cfg.bubble_max_mm)
-               & (area >= cfg.bubble_fill[0] * w * h) & (area <= cfg.bubble_fill[1] * w * h)
-               & (len_mm <= cfg.bubble_aspect * wid_mm) & (wid_mm <= cfg.bubble_aspect * len_mm))
+    wid_mm = h * offset_mm
+    compact = _compact(x, y, w, h, area, m, n, step_mm, offset_mm, cfg)
     for k in np.flatnonzero(compact)[np.argsort(x[compact])].tolist():
         before = np.flatnonzero(dark[: x[k]])
         if len(before) == 0 or x[k] > end + 1 + int(np.ceil(cfg.max_gap_mm / step_mm)):
@@ -2010,13 +2073,20 @@ def _edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[_Surve
     extent = hi0 - lo
     back = int(np.ceil((2.0 * cfg.bubble_max_mm + cfg.max_gap_mm + cfg.bubble_track_mm) / step))
     inner = np.abs(plan.u)
-    for b in np.flatnonzero(last_dark >= 0).tolist():  # an air bubble at or ahead of the tip
+    windows = []  # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end
+    for b in np.flatnonzero(last_dark >= 0).tolist():
         end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
         cols = slice(int(strip.start[b]) + a, int(strip.start[b] + strip.n[b]))
         half_b = float(np.median(plan.half_mm[lo[b] + a : lo[b] + strip.n[b]]))
-        cut, stop = _bubble_end(blurred[:, cols] * scale[cols] + shift[cols], darkness[cols] >= cfg.dark_level,
-                                seed[cols], inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm), end - a, step, du * half_b,
-                                2.0 * plan.r_tip_mm, cfg)
+        windows.append((b, end, a, cols, half_b, blurred[:, cols] * scale[cols] + shift[cols],
+                        inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
+    candidates = _with_compact([(c <= cfg.bubble_bright) & i[:, None] for *_, c, i in windows], step,
+                               np.array([du * w[4] for w in windows]), cfg)
+    for (b, end, a, cols, half_b, cover_b, inside_b), candidate in zip(windows, candidates.tolist()):
+        if not candidate:  # no bubble-like component in the window: _bubble_end would find none
+            continue
+        cut, stop = _bubble_end(cover_b, darkness[cols] >= cfg.dark_level, seed[cols], inside_b, end - a, step,
+                                du * half_b, 2.0 * plan.r_tip_mm, cfg)
         if stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
     # the stations that hold the array
