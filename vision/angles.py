@@ -220,8 +220,9 @@ class MeasureConfig:
     contact_excess_mm : float
         Excess gap (mm) over ``contact_tol_mm`` beyond which an excursion always ends the run.
     contact_bias_mm : float
-        Largest allowance (mm) for a bias of the measured gap. Blur, compression and doubled
-        wall lines can make a gap read some hundredths of a millimetre wide everywhere; where
+        Largest allowance (mm) for a bias of the measured gap. Blur, compression, doubled
+        wall lines, a registration a pixel or two off and an array somewhat wider than modelled
+        can make a gap read some hundredths of a millimetre wide all along; where
         the median measured gap of the stretch from the tip to the first gap above
         ``contact_tol_mm + contact_excess_mm`` exceeds ``contact_tol_mm / 2``, the excess (up
         to this much) is taken as bias and added to the tolerance. (With gaps read without
