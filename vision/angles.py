@@ -2381,9 +2381,9 @@ def _results_batch(plan: MeasurePlan, staged: list[tuple[_Edges, _CentreLine, di
     # median gap of each frame's stretch before its first gap over tol + excess
     hard = np.where(gaps > cfg.contact_tol_mm + cfg.contact_excess_mm, cl.local, cl.n[cl.row])
     stretch = cl.local < np.minimum.reduceat(hard, cl.start)[cl.row]
-    counts = np.add.reduceat(stretch.astype(np.intp), cl.start)
-    ranked = np.sort(np.where(stretch, np.minimum(gaps, 100.0), 500.0) + 1e3 * cl.row)  # frame by frame, ascending
-    median = ranked[cl.start + np.maximum(counts - 1, 0) // 2] - 1e3 * np.arange(len(cl.start))
+    counts = cl.count(stretch)
+    ranked = np.sort(cl.pad(np.where(stretch, gaps, np.inf), np.inf), axis=1)  # each frame's stretch, ascending
+    median = ranked[np.arange(len(counts)), np.maximum(counts - 1, 0) // 2]  # the lower median
     bias = np.where(counts > 0, np.clip(median - 0.5 * cfg.contact_tol_mm, 0.0, cfg.contact_bias_mm), 0.0)
     tol = (cfg.contact_tol_mm + bias)[cl.row]
     touching = gaps <= tol
