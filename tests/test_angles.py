@@ -634,6 +634,20 @@ def test_plan_samples_where_the_lens_puts_its_points():
     assert not ignoring_it.ok or abs(ignoring_it.theta_tip - truth.theta_tip) > 0.1
 
 
+def _registered_views(rng: np.random.Generator, pose: CameraPose, nuisance: Nuisance, depths: tuple[float, ...]):
+    """Render one random-looking scene at ``depths`` (mm), register it from its first frame and
+    measure every frame: yields (true state, measurement)."""
+    from vision.registration import register
+
+    scene = Scene(pose, W, H, random_appearance(rng), nuisance, rng=rng)
+    reg = None
+    for depth in depths:
+        state = pose_at_depth(depth)
+        gray = _gray(scene.render(state))
+        reg = reg or register([gray])
+        yield state, measure_frame(gray, reg)
+
+
 @pytest.mark.parametrize("gap_mm", [0.0, 0.3, 0.7])
 def test_a_bubble_at_or_ahead_of_the_tip_is_not_array(gap_mm: float) -> None:
     """An air bubble touching the tip (gap 0) or pushed 0.3 or 0.7 mm ahead of it, at four random
@@ -643,21 +657,13 @@ def test_a_bubble_at_or_ahead_of_the_tip_is_not_array(gap_mm: float) -> None:
     rad for the three gaps; the largest tip errors (0.105 rad, 2 of the 36 frames) are small
     bubbles with a faint rim that the tip's dark run bridges; the largest theta_bot error is 0.19
     rad. Read as array, the bubble puts the tip up to 0.42 rad too far and theta_bot 2.2 rad off."""
-    from vision.registration import register
-
     tip_err, bot_err = [], []
     for seed in range(4):
         rng = np.random.default_rng(500 + seed + int(10 * gap_mm))
         pose = random_pose(rng, W, H, px_per_mm=(15.0, 40.0))
         nuisance = replace(random_nuisance(rng, 0.3), bubble_at_tip=gap_mm)
-        scene = Scene(pose, W, H, random_appearance(rng), nuisance, rng=rng)
-        reg = None
-        for depth in (6.0, 10.0, 14.0):
-            state = pose_at_depth(depth)
-            gray = _gray(scene.render(state))
-            reg = reg or register([gray])
-            m = measure_frame(gray, reg)
-            assert m.ok, (seed, depth, m.reason)
+        for state, m in _registered_views(rng, pose, nuisance, (6.0, 10.0, 14.0)):
+            assert m.ok, (seed, state.truth.theta_tip, m.reason)
             tip_err.append(abs(m.theta_tip - state.truth.theta_tip))
             bot_err.append(abs(m.theta_bot - state.truth.theta_bot))
     assert np.median(tip_err) <= 0.01, tip_err
@@ -672,22 +678,14 @@ def test_contact_start_holds_under_motion_blur_and_compression() -> None:
     stretch's median gap over half of it as bias (``contact_bias_mm``). 12 random poses at
     15-25 px/mm, depths 8-17 mm: measured median |theta_bot error| 0.073 rad, max 0.123 rad
     (without the allowance: max 1.98 rad)."""
-    from vision.registration import register
-
     errors = []
     for seed in range(12):
         rng = np.random.default_rng(seed)
         pose = random_pose(rng, W, H, px_per_mm=(15.0, 25.0))
         nuisance = replace(random_nuisance(rng, 0.3), motion_blur_px=float(rng.uniform(3, 8)),
                            jpeg_quality=int(rng.integers(30, 60)))
-        scene = Scene(pose, W, H, random_appearance(rng), nuisance, rng=rng)
-        reg = None
-        for depth in (8.0, 11.0, 14.0, 17.0):
-            state = pose_at_depth(depth)
-            gray = _gray(scene.render(state))
-            reg = reg or register([gray])
-            m = measure_frame(gray, reg)
-            assert m.ok, (seed, depth, m.reason)
+        for state, m in _registered_views(rng, pose, nuisance, (8.0, 11.0, 14.0, 17.0)):
+            assert m.ok, (seed, state.truth.theta_tip, m.reason)
             errors.append(abs(m.theta_bot - state.truth.theta_bot))
     assert np.median(errors) <= 0.15 and max(errors) <= 0.25, np.round(errors, 3)
 
@@ -701,21 +699,13 @@ def test_doubled_walls_do_not_lead_the_tip_into_the_next_turn() -> None:
     theta_tip median 0.0012 rad, max 0.22 rad; theta_bot median 0.012 rad, one frame 1.78 rad
     off (the second wall line inside the channel biases the gaps). Without the tip checks frame
     802 at 14 mm reads 7.6 rad too far."""
-    from vision.registration import register
-
     tip_err, bot_err, measured = [], [], 0
     for seed in range(800, 812):
         rng = np.random.default_rng(seed)
         pose = random_pose(rng, W, H, px_per_mm=(15.0, 40.0))
         nuisance = replace(random_nuisance(rng, 0.3), doubled_wall_mm=float(rng.uniform(0.15, 0.45)),
                            doubled_wall_contrast=float(rng.uniform(0.3, 0.9)))
-        scene = Scene(pose, W, H, random_appearance(rng), nuisance, rng=rng)
-        reg = None
-        for depth in (6.0, 10.0, 14.0):
-            state = pose_at_depth(depth)
-            gray = _gray(scene.render(state))
-            reg = reg or register([gray])
-            m = measure_frame(gray, reg)
+        for state, m in _registered_views(rng, pose, nuisance, (6.0, 10.0, 14.0)):
             if m.ok:
                 measured += 1
                 tip_err.append(abs(m.theta_tip - state.truth.theta_tip))
