@@ -28,12 +28,12 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from pipeline.batch import ExtractConfig, ExtractLog, measure_frames, trial_name
-from pipeline.io import atomic_write_bytes, atomic_write_csv
-from vision.drawing import annotate_frame
-from vision.errors import InputError
-from vision.frames import open_frames
-from vision.geometry import Phantom, point_angle
+from tympani.pipeline.batch import ExtractConfig, ExtractLog, measure_frames, trial_name
+from tympani.pipeline.io import atomic_write_bytes, atomic_write_csv
+from tympani.vision.drawing import annotate_frame
+from tympani.vision.errors import InputError
+from tympani.vision.frames import open_frames
+from tympani.vision.geometry import Phantom, point_angle
 
 __all__ = [
     "LABEL_COLUMNS",
@@ -369,7 +369,7 @@ def annotate_video(
 
 
 def _rows_table(rows: list[dict]) -> pd.DataFrame:
-    from pipeline.batch import ANGLE_COLUMNS
+    from tympani.pipeline.batch import ANGLE_COLUMNS
 
     table = pd.DataFrame(rows)
     if table.empty:

@@ -46,14 +46,14 @@ import numpy as np
 import pandas as pd
 from numpy.lib.stride_tricks import sliding_window_view
 
-from pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, csv_records, provenance, remove_stale_temps
-from pipeline.kinematics import KinematicsConfig, flag_kinematics
-from vision.errors import InputError, is_input_error, one_line
-from vision.frames import Frame, FrameSource, LensCalibration, check_decoder_threads, open_frames, to_gray, undistorter
-from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, csv_records, provenance, remove_stale_temps
+from tympani.pipeline.kinematics import KinematicsConfig, flag_kinematics
+from tympani.vision.errors import InputError, is_input_error, one_line
+from tympani.vision.frames import Frame, FrameSource, LensCalibration, check_decoder_threads, open_frames, to_gray, undistorter
+from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
 
 if TYPE_CHECKING:  # pragma: no cover
-    from vision.registration import Registration
+    from tympani.vision.registration import Registration
 
 __all__ = [
     "ANGLE_COLUMNS",
@@ -84,13 +84,13 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
 
 
 def _default_measure_config() -> Any:
-    from vision.angles import MeasureConfig
+    from tympani.vision.angles import MeasureConfig
 
     return MeasureConfig()
 
 
 def _default_registration_config() -> Any:
-    import vision.registration as reg_mod
+    import tympani.vision.registration as reg_mod
 
     factory = getattr(reg_mod, "RegistrationConfig", None)
     return factory() if factory is not None else None
@@ -362,8 +362,8 @@ def measure_frames(
     InputError
         The first registration failed (no phantom found), or the frames are bad.
     """
-    import vision.angles as angles_mod  # looked up at call time: replaceable in tests
-    import vision.registration as reg_mod
+    import tympani.vision.angles as angles_mod  # looked up at call time: replaceable in tests
+    import tympani.vision.registration as reg_mod
 
     log = log if log is not None else ExtractLog()
     phantom = cfg.phantom
@@ -816,8 +816,8 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     list of str
         One line per span gone over in which the camera was found to have moved.
     """
-    import vision.angles as angles_mod  # looked up at call time: replaceable in tests
-    import vision.registration as reg_mod
+    import tympani.vision.angles as angles_mod  # looked up at call time: replaceable in tests
+    import tympani.vision.registration as reg_mod
 
     notes: list[str] = []
     undistort: Callable[[np.ndarray], np.ndarray] | None = None  # cfg.calibration's, made on the first frame
@@ -1090,7 +1090,7 @@ def _pool_context():
     import multiprocessing
 
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["numpy", "cv2", "pandas", "pipeline.batch"])
+    ctx.set_forkserver_preload(["numpy", "cv2", "pandas", "tympani.pipeline.batch"])
     return ctx
 
 

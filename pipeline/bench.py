@@ -52,9 +52,9 @@ from typing import Any, Callable, Iterator
 
 from threadpoolctl import threadpool_limits
 
-from pipeline.logbench import bench_log_read, format_log_bench
-from pipeline.memory import peak_rss_mib
-from vision.errors import one_line
+from tympani.pipeline.logbench import bench_log_read, format_log_bench
+from tympani.pipeline.memory import peak_rss_mib
+from tympani.vision.errors import one_line
 
 __all__ = ["BenchConfig", "render_bench_video", "loop_video", "run_bench", "format_bench", "SECTIONS"]
 
@@ -161,7 +161,7 @@ def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed
     """
     import numpy as np
 
-    from vision import rendering
+    from tympani.vision import rendering
 
     names = {f.name for f in dataclasses.fields(rendering.VideoSpec)}
     width, height = int(size[0]), int(size[1])
@@ -196,7 +196,7 @@ def loop_video(src: str | os.PathLike, dst: str | os.PathLike, times: int, *, fp
     """
     import cv2
 
-    from vision.frames import open_frames
+    from tympani.vision.frames import open_frames
 
     source = open_frames(src, fps=fps)
     height, width = source.shape[:2]
@@ -247,7 +247,7 @@ def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None)
     """Frames, wall time (s) and (height, width) of opening ``path`` (as the extraction does,
     which reads its first frame for the size), decoding it (decoder on ``decoder_threads``,
     None: its default) and converting to grey."""
-    from vision.frames import open_frames, to_gray
+    from tympani.vision.frames import open_frames, to_gray
 
     t0 = time.perf_counter()
     source = open_frames(path, fps=fps, decoder_threads=decoder_threads)
@@ -260,7 +260,7 @@ def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None)
 
 def _extract_s(path: Path, cfg: Any, fps: float | None) -> tuple[Any, float]:
     """The angles table of ``path`` and the wall time (s) of its extraction."""
-    from pipeline.batch import extract_video
+    from tympani.pipeline.batch import extract_video
 
     t0 = time.perf_counter()
     table, _ = extract_video(path, cfg, fps=fps)
@@ -340,14 +340,14 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 5) -> dict:
 
 
 def _child_rss(argv: list[str]) -> None:
-    """Body of the memory subprocess: ``python -m pipeline.bench rss VIDEO CFG_PICKLE [FPS]``.
+    """Body of the memory subprocess: ``python -m tympani.pipeline.bench rss VIDEO CFG_PICKLE [FPS]``.
 
     Prints one JSON line: ``import_rss_mib`` (peak after the imports), ``peak_rss_mib`` (after
     :func:`pipeline.batch.process_video`), ``n_frames`` and ``seconds``.
     """
     import cv2
 
-    from pipeline.batch import process_video
+    from tympani.pipeline.batch import process_video
 
     cv2.setNumThreads(1)
     video, cfg_path = argv[0], argv[1]
@@ -365,7 +365,7 @@ def _child_rss(argv: list[str]) -> None:
 
 def _rss_in_subprocess(video: Path, cfg_path: Path, fps: float | None) -> dict:
     """Run :func:`_child_rss` in a fresh interpreter and return its JSON."""
-    cmd = [sys.executable, "-m", "pipeline.bench", "rss", str(video), str(cfg_path)]
+    cmd = [sys.executable, "-m", "tympani.pipeline.bench", "rss", str(video), str(cfg_path)]
     if fps is not None:
         cmd.append(repr(float(fps)))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -395,8 +395,8 @@ def _diagnosis(config: BenchConfig) -> dict:
     """Section 4: time to generate and diagnose a synthetic speeds × trials dataset."""
     import numpy as np
 
-    from pipeline.diagnosis import DiagnosisConfig, diagnose
-    from pipeline.synthetic import synthetic_dataset
+    from tympani.pipeline.diagnosis import DiagnosisConfig, diagnose
+    from tympani.pipeline.synthetic import synthetic_dataset
 
     t0 = time.perf_counter()
     synced, _ = synthetic_dataset(np.random.default_rng(config.seed), "hydrodynamic_lift",
@@ -414,7 +414,7 @@ def _diagnosis(config: BenchConfig) -> dict:
 
 def _workers(path: Path, cfg: Any, fps: float | None, config: BenchConfig, tmp: Path) -> list[dict]:
     """Section 5: :func:`pipeline.batch.extract_batch` on copies of the video per worker count."""
-    from pipeline.batch import VideoItem, extract_batch
+    from tympani.pipeline.batch import VideoItem, extract_batch
 
     items = [VideoItem(str(path), trial=f"bench{i:02d}", fps=fps) for i in range(config.batch_videos)]
     out = []
@@ -487,7 +487,7 @@ def run_bench(
     """
     import cv2
 
-    from pipeline.batch import ExtractConfig
+    from tympani.pipeline.batch import ExtractConfig
 
     config = config if config is not None else BenchConfig()
     overrides: dict[str, Any] = {k: v for k, v in (("n_frames", n_frames), ("seed", seed)) if v is not None}
@@ -598,4 +598,4 @@ if __name__ == "__main__":  # the memory figure's subprocess (see _rss_in_subpro
     if len(sys.argv) >= 4 and sys.argv[1] == "rss":
         _child_rss(sys.argv[2:])
     else:
-        sys.exit("usage: python -m pipeline.bench rss VIDEO CONFIG_PICKLE [FPS]")
+        sys.exit("usage: python -m tympani.pipeline.bench rss VIDEO CONFIG_PICKLE [FPS]")

@@ -77,11 +77,11 @@ import pandas as pd
 from scipy import stats
 from scipy.optimize import nnls
 
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
-from pipeline.forcelog import parse_numeric, read_table_lines
-from pipeline.io import atomic_write_csv, atomic_write_json, provenance
-from pipeline.stats import MAX_RHO, cluster_covariance, effective_sample_size, lag1_autocorrelation
+from tympani.pipeline.forcelog import parse_numeric, read_table_lines
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance
+from tympani.pipeline.stats import MAX_RHO, cluster_covariance, effective_sample_size, lag1_autocorrelation
 
 __all__ = [
     "ANGLES",

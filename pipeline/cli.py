@@ -21,9 +21,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
-from pipeline.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int,
+from tympani.pipeline.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int,
                                speed_list)
-from vision.errors import InputError, is_input_error
+from tympani.vision.errors import InputError, is_input_error
 
 __all__ = ["Command", "COMMANDS", "build_parser", "main", "UsageError"]
 
@@ -80,9 +80,9 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _extract_config(args: argparse.Namespace):
-    from pipeline.batch import ExtractConfig
-    from vision.frames import LensCalibration
-    from vision.geometry import DEFAULT_ARRAY
+    from tympani.pipeline.batch import ExtractConfig
+    from tympani.vision.frames import LensCalibration
+    from tympani.vision.geometry import DEFAULT_ARRAY
 
     calibration = LensCalibration.from_json(args.calibration) if args.calibration else None
     array = DEFAULT_ARRAY if args.array_diameters is None else replace(
@@ -156,8 +156,8 @@ def _scheduler(args: argparse.Namespace, command: str):
 
 
 def _run_extract(args: argparse.Namespace) -> int:
-    from pipeline.batch import extract_batch, read_manifest
-    from pipeline.io import atomic_write_csv
+    from tympani.pipeline.batch import extract_batch, read_manifest
+    from tympani.pipeline.io import atomic_write_csv
 
     if bool(args.videos) == bool(args.manifest):
         raise UsageError("tympani extract: give either VIDEO... or --manifest M (see 'tympani extract --help')")
@@ -210,7 +210,7 @@ def _configure_annotate(p: argparse.ArgumentParser) -> None:
 def _run_annotate(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from pipeline.annotate import annotate_video, labels_frame, parse_label, read_labels, summarize_comparison
+    from tympani.pipeline.annotate import annotate_video, labels_frame, parse_label, read_labels, summarize_comparison
 
     tables = []
     if args.labels:
@@ -262,7 +262,7 @@ def _configure_bench(p: argparse.ArgumentParser) -> None:
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from pipeline.bench import SECTIONS, BenchConfig, format_bench, run_bench
+    from tympani.pipeline.bench import SECTIONS, BenchConfig, format_bench, run_bench
 
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
     if skip - set(SECTIONS):
@@ -332,8 +332,8 @@ def _configure_render(p: argparse.ArgumentParser) -> None:
 
 
 def _run_render(args: argparse.Namespace) -> int:
-    from pipeline.experiment import ExperimentConfig, render_experiment
-    from pipeline.synthetic import hidden_effect_names
+    from tympani.pipeline.experiment import ExperimentConfig, render_experiment
+    from tympani.pipeline.synthetic import hidden_effect_names
 
     if not 0.0 <= args.nuisance <= 1.0:
         raise UsageError(f"tympani render: --nuisance must be between 0 and 1, not {args.nuisance}")
@@ -347,7 +347,7 @@ def _run_render(args: argparse.Namespace) -> int:
     if args.no_video:
         import numpy as np
 
-        from pipeline.synthetic import synthetic_dataset, write_experiment
+        from tympani.pipeline.synthetic import synthetic_dataset, write_experiment
 
         synced, truth = synthetic_dataset(np.random.default_rng(args.seed), effect, strength=args.strength,
                                           speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth,
@@ -389,7 +389,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 
 def _run_config(args: argparse.Namespace, *, workers: int | None = None):
-    from pipeline.run import RunConfig
+    from tympani.pipeline.run import RunConfig
 
     if str(args.scenario).lower() != "none" and str(args.scenario).upper() not in ("S1", "S2", "S3", "S4"):
         raise UsageError(f"tympani {args.command}: unknown --scenario {args.scenario!r}; choose from S1..S4 or none")
@@ -414,7 +414,7 @@ def _print_run(result) -> None:
 
 
 def _run_run(args: argparse.Namespace) -> int:
-    from pipeline.run import run_pipeline
+    from tympani.pipeline.run import run_pipeline
 
     command = ["tympani", "run", "--manifest", args.manifest, "--out", args.out, "--workers", str(args.workers),
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
@@ -443,7 +443,7 @@ def _configure_demo(p: argparse.ArgumentParser) -> None:
 def _run_demo(args: argparse.Namespace) -> int:
     import time
 
-    from pipeline.demo import run_demo
+    from tympani.pipeline.demo import run_demo
 
     t0 = time.perf_counter()
     result = run_demo(args.out, seed=args.seed, workers=args.workers, quiet=args.quiet, overwrite=args.overwrite)
@@ -465,9 +465,9 @@ def _run_demo(args: argparse.Namespace) -> int:
     return result["run"].exit_status
 
 
-from pipeline import force_cli as _force_cli  # noqa: E402  (cheap: argparse only; the model loads on run)
-from pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: argparse only)
-from pipeline import diagnosis_cli as _diagnosis_cli  # noqa: E402  (cheap: argparse only)
+from tympani.pipeline import force_cli as _force_cli  # noqa: E402  (cheap: argparse only; the model loads on run)
+from tympani.pipeline import sync_bounds_cli as _sync_bounds_cli  # noqa: E402  (cheap: argparse only)
+from tympani.pipeline import diagnosis_cli as _diagnosis_cli  # noqa: E402  (cheap: argparse only)
 
 
 # --------------------------------------------------------------------------- registry

@@ -14,7 +14,7 @@ import os
 
 import pandas as pd
 
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 __all__ = ["NotEnoughData", "TIP_ONLY_HINT", "has_contact_angles", "speeds_found", "lacks", "require"]
 

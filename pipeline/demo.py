@@ -42,8 +42,8 @@ DEMO_DWELL_S = 2.0
 
 def demo_experiment():
     """The demo's :class:`pipeline.experiment.ExperimentConfig`: the paper's speed drop, hidden."""
-    from pipeline.experiment import ExperimentConfig
-    from pipeline.synthetic import PAPER_LIFT
+    from tympani.pipeline.experiment import ExperimentConfig
+    from tympani.pipeline.synthetic import PAPER_LIFT
 
     return ExperimentConfig(speeds_mm_s=DEMO_SPEEDS_MM_S, trials=DEMO_TRIALS, max_frames=DEMO_MAX_FRAMES,
                             dwell_s=DEMO_DWELL_S, effect="hydrodynamic_lift",
@@ -65,8 +65,8 @@ def force_drops(synced_path: str | Path) -> pd.DataFrame:
         ``change_pct`` (measured), ``paper_pct`` (the paper's experiments, NaN where it gives none)
         and ``model_pct`` (the paper's model, scenario S4, from the slowest speed to this one).
     """
-    from pipeline.paper import PAPER_DROPS_PCT, peak_force_change
-    from pipeline.synthetic import peak_force_drop
+    from tympani.pipeline.paper import PAPER_DROPS_PCT, peak_force_change
+    from tympani.pipeline.synthetic import peak_force_drop
 
     table = peak_force_drop(pd.read_csv(synced_path))
     ref = float(table["speed_mm_s"].iloc[0])
@@ -137,11 +137,11 @@ def run_demo(out_dir: str | Path, *, seed: int = 0, workers: int = 2, quiet: boo
     import sys
     from dataclasses import replace
 
-    from pipeline.run import RunConfig, run_pipeline
+    from tympani.pipeline.run import RunConfig, run_pipeline
 
     out = Path(out_dir)
     if not (out / "manifest.csv").exists():  # render_experiment writes the manifest last
-        from pipeline.experiment import render_experiment
+        from tympani.pipeline.experiment import render_experiment
 
         if not quiet:
             print(f"demo: rendering {len(DEMO_SPEEDS_MM_S) * DEMO_TRIALS} videos into {out}", file=sys.stderr)

@@ -101,9 +101,9 @@ from scipy import stats
 from scipy.optimize import least_squares, nnls
 from scipy.signal import lfilter, savgol_filter
 
-from pipeline.data_needs import has_contact_angles, require
-from vision.errors import InputError
-from vision.geometry import DEFAULT_PHANTOM, Phantom
+from tympani.pipeline.data_needs import has_contact_angles, require
+from tympani.vision.errors import InputError
+from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
 from .diagnosis_experiments import splitting_experiments
 from .effects import EFFECTS, EffectContext

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.argtypes import UsageError, positive_int
+from tympani.pipeline.argtypes import UsageError, positive_int
 
 __all__ = [
     "configure_diagnose",
@@ -58,8 +58,8 @@ def configure_diagnose(p: argparse.ArgumentParser) -> None:
 
 def run_diagnose(args: argparse.Namespace) -> int:
     """Run ``tympani diagnose``."""
-    from pipeline.diagnosis import DiagnosisConfig, diagnose, read_synced
-    from pipeline.diagnosis_report import summary_line, write_diagnosis
+    from tympani.pipeline.diagnosis import DiagnosisConfig, diagnose, read_synced
+    from tympani.pipeline.diagnosis_report import summary_line, write_diagnosis
 
     table = read_synced(args.synced)
     config = DiagnosisConfig(seed=args.seed, bootstrap=args.bootstrap, rows_per_trial=args.rows_per_trial)
@@ -90,9 +90,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
     """Run ``tympani evaluate-diagnosis``."""
     import time
 
-    from pipeline.diagnosis_eval import EvalConfig, evaluate, format_evaluation, summarise
+    from tympani.pipeline.diagnosis_eval import EvalConfig, evaluate, format_evaluation, summarise
 
-    from pipeline.diagnosis_eval import FAMILIES
+    from tympani.pipeline.diagnosis_eval import FAMILIES
 
     families = [f.strip().upper() for f in str(args.family).split(",") if f.strip()]
     unknown = [f for f in families if f not in FAMILIES]
@@ -112,7 +112,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         if args.out:
             from pathlib import Path
 
-            from pipeline.io import atomic_write_csv, atomic_write_json, atomic_write_text
+            from tympani.pipeline.io import atomic_write_csv, atomic_write_json, atomic_write_text
 
             out = Path(args.out) / f"family_{family}"
             atomic_write_csv(out / "cases.csv", results[[c for c in results.columns if not c.startswith("_")]])

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import lfilter
 
-from vision.geometry import DEFAULT_PHANTOM, Phantom
+from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 from .friction import DEFAULT_FRICTION_MODE, FrictionMode
 
 __all__ = ["EffectContext", "Effect", "EFFECTS", "effect_names", "bump_integrals", "first_order_lag"]
@@ -82,7 +82,7 @@ def bump_integrals(
 
 
 def _entry_axis(phantom: Phantom):
-    from vision.geometry import entry_frame
+    from tympani.vision.geometry import entry_frame
 
     return entry_frame(phantom)
 

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from vision.rendering import (
+from tympani.vision.rendering import (
     VideoSpec,
     random_appearance,
     random_nuisance,

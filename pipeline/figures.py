@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from pipeline.bounds import SpeedFit, bands, form_label  # noqa: E402
+from tympani.pipeline.bounds import SpeedFit, bands, form_label  # noqa: E402
 
 __all__ = ["Simulated", "simulated_table", "plot_force_vs_theta_con", "plot_log_force", "plot_bounds", "write_figures"]
 
@@ -78,7 +78,7 @@ def _at_speed(df: pd.DataFrame, speed: float) -> pd.DataFrame:
 
 
 def _save(fig, path: str | os.PathLike) -> Path:
-    from pipeline.io import atomic_open
+    from tympani.pipeline.io import atomic_open
 
     out = Path(path)
     try:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pipeline.argtypes import UsageError, positive_int, speed_list
+from tympani.pipeline.argtypes import UsageError, positive_int, speed_list
 
 __all__ = [
     "configure_simulate",
@@ -57,7 +57,7 @@ _SPEED_DEFAULT = (0.5, 3.0, 7.5)
 
 
 def _name_list(text: str) -> list[str]:
-    from pipeline.friction import FLAT_NAMES
+    from tympani.pipeline.friction import FLAT_NAMES
 
     names = [v.strip() for v in text.split(",") if v.strip()]
     unknown = [n for n in names if n not in FLAT_NAMES]
@@ -68,7 +68,7 @@ def _name_list(text: str) -> list[str]:
 
 
 def _assignments(text: str) -> dict[str, float]:
-    from pipeline.friction import FLAT_NAMES
+    from tympani.pipeline.friction import FLAT_NAMES
 
     out: dict[str, float] = {}
     for item in (v.strip() for v in text.split(",") if v.strip()):
@@ -110,7 +110,7 @@ def _compact(table) -> str:
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Run ``tympani simulate``; returns the exit status."""
-    from pipeline.paper import SCENARIOS, SIM_COLUMNS, simulate
+    from tympani.pipeline.paper import SCENARIOS, SIM_COLUMNS, simulate
 
     if args.grid is not None and args.grid < 2:
         raise UsageError("tympani simulate: --grid must be at least 2")
@@ -118,7 +118,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     table = table[list(SIM_COLUMNS) + ["step"]]
     sc = SCENARIOS[args.scenario]
     if args.out:
-        from pipeline.io import atomic_write_csv
+        from tympani.pipeline.io import atomic_write_csv
 
         atomic_write_csv(args.out, table)
         peaks = table.groupby("speed_mm_s")["force_g"].max()
@@ -141,14 +141,14 @@ def configure_paper(p: argparse.ArgumentParser) -> None:
 
 def run_paper(args: argparse.Namespace) -> int:
     """Run ``tympani paper``; returns the exit status."""
-    from pipeline.paper import fit_table_ii, format_table_ii_fit
+    from tympani.pipeline.paper import fit_table_ii, format_table_ii_fit
 
     fit = fit_table_ii()
     print(format_table_ii_fit(fit))
     if args.out:
         from pathlib import Path
 
-        from pipeline.io import atomic_write_csv, atomic_write_json
+        from tympani.pipeline.io import atomic_write_csv, atomic_write_json
 
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -197,7 +197,7 @@ def run_fit(args: argparse.Namespace) -> int:
     """Run ``tympani fit``; returns the exit status."""
     import os
 
-    from pipeline.identify import DEFAULT_FREE, FitOptions, fit_synced, read_synced, write_fit
+    from tympani.pipeline.identify import DEFAULT_FREE, FitOptions, fit_synced, read_synced, write_fit
 
     table = read_synced(args.synced)
     free = tuple(args.free) if args.free else DEFAULT_FREE

@@ -45,8 +45,8 @@ from typing import IO, Any, Callable, Iterator, Literal, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from pipeline.io import csv_records, data_lines, to_jsonable
-from vision.errors import InputError, one_line
+from tympani.pipeline.io import csv_records, data_lines, to_jsonable
+from tympani.vision.errors import InputError, one_line
 
 __all__ = [
     "G_PER_N",

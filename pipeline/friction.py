@@ -78,7 +78,7 @@ from typing import Any, Literal, Mapping, Protocol, Sequence, runtime_checkable
 import numpy as np
 import pandas as pd
 
-from vision.geometry import DEFAULT_PHANTOM, Phantom, entry_frame
+from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom, entry_frame
 
 __all__ = [
     "G_N",

@@ -73,9 +73,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from pipeline.data_needs import require
-from vision.errors import InputError
-from vision.geometry import DEFAULT_PHANTOM, Phantom
+from tympani.pipeline.data_needs import require
+from tympani.vision.errors import InputError
+from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
 from .friction import (
     FLAT_NAMES,

@@ -36,7 +36,7 @@ from typing import IO, Any, Iterable, Iterator
 import numpy as np
 import pandas as pd
 
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 __all__ = [
     "OutputError",

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from pipeline.stats import mad_sd
+from tympani.pipeline.stats import mad_sd
 
 __all__ = ["KinematicsConfig", "InsertionFit", "fit_insertion", "insertion_depth", "flag_kinematics"]
 

@@ -36,7 +36,7 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from pipeline.forcelog import (
+from tympani.pipeline.forcelog import (
     ColumnKind,
     CsvHeader,
     ForceLogConfig,
@@ -46,9 +46,9 @@ from pipeline.forcelog import (
     read_csv_columns,
     read_force_log,
 )
-from pipeline.logformat import TIME_UNITS, AnglesFormat, DepthFormat, ForceFormat, LogFormat, StreamFormat
-from pipeline.motion import Motion, NoMotion, find_motion
-from vision.errors import InputError
+from tympani.pipeline.logformat import TIME_UNITS, AnglesFormat, DepthFormat, ForceFormat, LogFormat, StreamFormat
+from tympani.pipeline.motion import Motion, NoMotion, find_motion
+from tympani.vision.errors import InputError
 
 __all__ = [
     "Clock",
@@ -231,7 +231,7 @@ class LabLogs:
 
 
 def _is_bag(path: Path) -> bool:
-    from pipeline.rosbag import is_bag
+    from tympani.pipeline.rosbag import is_bag
 
     return is_bag(path)
 
@@ -266,7 +266,7 @@ def read_stream(path: str | os.PathLike, fmt: StreamFormat, fields: Mapping[str,
     if _is_bag(p):
         if fmt.topic is None:
             raise InputError(p, f"[{fmt.section}] topic: this is a ROS bag; the log format must name its topic")
-        from pipeline.rosbag import read_bag_fields
+        from tympani.pipeline.rosbag import read_bag_fields
 
         bag = read_bag_fields(p, fmt.topic, {k: col for k, (_, col) in fields.items()}, time_field=fmt.time_column,
                               section=fmt.section, key_of={k: key for k, (key, _) in fields.items()})

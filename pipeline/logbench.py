@@ -6,7 +6,7 @@ reads it through a log format in a fresh Python process (a peak is per process),
 seconds and the peak resident memory, and the resident memory after the imports, so that the
 reading's own share shows.
 
-Run alone: ``python -m pipeline.logbench [ROWS]`` (default 1,000,000).
+Run alone: ``python -m tympani.pipeline.logbench [ROWS]`` (default 1,000,000).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.memory import peak_rss_mib
+from tympani.pipeline.memory import peak_rss_mib
 
 __all__ = ["ROS_FORMAT", "write_ros_force_csv", "bench_log_read", "format_log_bench"]
 
@@ -78,8 +78,8 @@ def write_ros_force_csv(path: str | os.PathLike, rows: int, *, seed: int = 0, ra
 
 def _child(path: str, fmt_path: str) -> None:
     """Body of the subprocess: read the log through its format, print one JSON line."""
-    from pipeline.labstreams import read_force_stream
-    from pipeline.logformat import read_log_format
+    from tympani.pipeline.labstreams import read_force_stream
+    from tympani.pipeline.logformat import read_log_format
 
     fmt = read_log_format(fmt_path)
     before = peak_rss_mib()
@@ -117,7 +117,7 @@ def bench_log_read(rows: int = 1_000_000, *, seed: int = 0, folder: str | os.Pat
         write_ros_force_csv(log, rows, seed=seed)
         write_s = time.perf_counter() - t0
         fmt.write_text(ROS_FORMAT, encoding="utf-8")
-        done = subprocess.run([sys.executable, "-m", "pipeline.logbench", "read", str(log), str(fmt)],
+        done = subprocess.run([sys.executable, "-m", "tympani.pipeline.logbench", "read", str(log), str(fmt)],
                               capture_output=True, text=True, timeout=3600)
         if done.returncode != 0:
             lines = [line for line in done.stderr.splitlines() if line.strip()]
@@ -143,4 +143,4 @@ if __name__ == "__main__":
     elif len(sys.argv) <= 2:
         print(format_log_bench(bench_log_read(int(sys.argv[1]) if len(sys.argv) == 2 else 1_000_000)))
     else:
-        sys.exit("usage: python -m pipeline.logbench [ROWS]")
+        sys.exit("usage: python -m tympani.pipeline.logbench [ROWS]")

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from pipeline.forcelog import G_PER_N
-from vision.errors import InputError
+from tympani.pipeline.forcelog import G_PER_N
+from tympani.vision.errors import InputError
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.stats import mad_sd
+from tympani.pipeline.stats import mad_sd
 
 __all__ = ["Motion", "NoMotion", "find_motion", "rest_noise"]
 

@@ -56,7 +56,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares, nnls
 
-from vision.geometry import DEFAULT_PHANTOM, Phantom
+from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
 from .friction import (
     DEFAULT_FRICTION_MODE,

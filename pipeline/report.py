@@ -452,6 +452,6 @@ def write_report(out_dir: str | os.PathLike) -> Path:
     -------
     Path
     """
-    from pipeline.io import atomic_write_text
+    from tympani.pipeline.io import atomic_write_text
 
     return atomic_write_text(Path(out_dir) / REPORT_NAME, render_html(load_report_data(out_dir)))

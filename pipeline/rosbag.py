@@ -21,7 +21,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 __all__ = ["BAG_SUFFIXES", "is_bag", "BagFields", "read_bag_fields", "field_value"]
 

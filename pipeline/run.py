@@ -33,8 +33,8 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from pipeline.data_needs import NotEnoughData, has_contact_angles
-from vision.errors import InputError, is_input_error, one_line
+from tympani.pipeline.data_needs import NotEnoughData, has_contact_angles
+from tympani.vision.errors import InputError, is_input_error, one_line
 
 __all__ = ["RunConfig", "RunResult", "StageRecord", "run_pipeline", "is_fresh", "RUN_JSON", "TRIALS_CSV"]
 
@@ -46,31 +46,31 @@ STAGES = ("extract", "sync", "fit", "bounds", "diagnose", "report")
 
 
 def _default_extract() -> Any:
-    from pipeline.batch import ExtractConfig
+    from tympani.pipeline.batch import ExtractConfig
 
     return ExtractConfig()
 
 
 def _default_sync() -> Any:
-    from pipeline.sync import SyncConfig
+    from tympani.pipeline.sync import SyncConfig
 
     return SyncConfig()
 
 
 def _default_fit() -> Any:
-    from pipeline.identify import FitOptions
+    from tympani.pipeline.identify import FitOptions
 
     return FitOptions()
 
 
 def _default_bounds() -> Any:
-    from pipeline.bounds import BoundsConfig
+    from tympani.pipeline.bounds import BoundsConfig
 
     return BoundsConfig()
 
 
 def _default_diagnosis() -> Any:
-    from pipeline.diagnosis import DiagnosisConfig
+    from tympani.pipeline.diagnosis import DiagnosisConfig
 
     return DiagnosisConfig()
 
@@ -194,7 +194,7 @@ def is_fresh(outputs: Sequence[Path], inputs: Sequence[Path]) -> bool:
 
 def _settings(*parts: Any) -> str:
     """A stable text of a stage's settings (dataclasses expanded), compared on resume."""
-    from pipeline.io import to_jsonable
+    from tympani.pipeline.io import to_jsonable
 
     return repr([to_jsonable(dataclasses.asdict(p) if dataclasses.is_dataclass(p) and not isinstance(p, type) else p)
                   for p in parts])
@@ -253,8 +253,8 @@ def _log(cfg: RunConfig, text: str) -> None:
 
 def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord, executor: Any = None) -> pd.DataFrame:
     """Angles tables of the manifest's videos (rows that give an angles table are not extracted)."""
-    from pipeline.batch import SUMMARY_COLUMNS, extract_batch
-    from pipeline.io import atomic_write_csv
+    from tympani.pipeline.batch import SUMMARY_COLUMNS, extract_batch
+    from tympani.pipeline.io import atomic_write_csv
 
     rows = manifest[manifest["video"].notna() & manifest["angles"].isna()]
     rec.settings = _settings(cfg.extract, cfg.fps)
@@ -280,7 +280,7 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
     """The synced table; returns the sync report (``synced.sync.json`` content)."""
     import json
 
-    from pipeline.sync import report_path, sync_manifest, write_sync
+    from tympani.pipeline.sync import report_path, sync_manifest, write_sync
 
     table, report = out / "synced.csv", report_path(out / "synced.csv")
     angles_dir = out / "angles"
@@ -315,7 +315,7 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
 
 
 def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from pipeline.identify import fit_synced, read_synced, write_fit
+    from tympani.pipeline.identify import fit_synced, read_synced, write_fit
 
     fit_dir = out / "fit"
     rec.settings = _settings(cfg.fit)
@@ -340,7 +340,7 @@ def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previou
 def _simulated(scenario: str | None) -> Callable | None:
     if scenario is None or str(scenario).lower() == "none":
         return None
-    from pipeline.paper import SCENARIOS, simulate
+    from tympani.pipeline.paper import SCENARIOS, simulate
 
     name = str(scenario).upper()
     if name not in SCENARIOS:
@@ -349,8 +349,8 @@ def _simulated(scenario: str | None) -> Callable | None:
 
 
 def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from pipeline.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
-    from pipeline.figures import write_figures
+    from tympani.pipeline.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
+    from tympani.pipeline.figures import write_figures
 
     bdir = out / "bounds"
     figures = ["force_vs_theta_con.png", "log_force.png", "bounds.png"]
@@ -384,8 +384,8 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
 
 
 def _diagnose(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from pipeline.diagnosis import diagnose, read_synced
-    from pipeline.diagnosis_report import summary_line, write_diagnosis
+    from tympani.pipeline.diagnosis import diagnose, read_synced
+    from tympani.pipeline.diagnosis_report import summary_line, write_diagnosis
 
     ddir = out / "diagnosis"
     rec.settings = _settings(cfg.diagnosis)
@@ -510,14 +510,14 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     vision.errors.InputError
         The manifest itself is unusable (missing, bad header or value, a missing file).
     """
-    from pipeline.batch import read_manifest
-    from pipeline.io import atomic_write_csv, atomic_write_json, provenance
+    from tympani.pipeline.batch import read_manifest
+    from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance
 
     t_start = time.perf_counter()
     mpath = Path(manifest)
     table = read_manifest(mpath)
     if cfg.log_format is not None:
-        from pipeline.logformat import read_log_format
+        from tympani.pipeline.logformat import read_log_format
 
         read_log_format(cfg.log_format)  # a bad --format is one error before anything runs
     out = Path(out_dir)
@@ -578,7 +578,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
                         errors=list(errors), seconds=round(time.perf_counter() - t_start, 3))
     atomic_write_json(out / RUN_JSON, record)
 
-    from pipeline.report import write_report
+    from tympani.pipeline.report import write_report
 
     rec = stages["report"]
     _log(cfg, "run: report")

@@ -79,13 +79,13 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
-from pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
-from pipeline.io import atomic_write_csv, atomic_write_json, csv_records, data_lines, tool_version
-from pipeline.labstreams import read_lab_logs, track_coverage
-from pipeline.logformat import LogFormat, read_log_format
-from pipeline.motion import Motion
-from pipeline.stats import mad_sd
-from vision.errors import InputError, is_input_error, one_line
+from tympani.pipeline.forcelog import ForceLogConfig, parse_numeric, read_table_lines
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json, csv_records, data_lines, tool_version
+from tympani.pipeline.labstreams import read_lab_logs, track_coverage
+from tympani.pipeline.logformat import LogFormat, read_log_format
+from tympani.pipeline.motion import Motion
+from tympani.pipeline.stats import mad_sd
+from tympani.vision.errors import InputError, is_input_error, one_line
 
 __all__ = [
     "SYNC_COLUMNS",
@@ -965,7 +965,7 @@ def sync_manifest(
         The manifest itself or ``log_format`` is unusable (missing, bad header, bad value); a
         bad trial (its logs, or its own format file) only marks that trial failed.
     """
-    from pipeline.batch import read_manifest
+    from tympani.pipeline.batch import read_manifest
 
     mpath = Path(manifest)
     default_format = read_log_format(log_format) if log_format is not None else None

@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pipeline.argtypes import fraction, positive_float
+from tympani.pipeline.argtypes import fraction, positive_float
 
 __all__ = [
     "SYNC_HELP",
@@ -76,8 +76,8 @@ def configure_sync(p: argparse.ArgumentParser) -> None:
 
 def run_sync(args: argparse.Namespace) -> int:
     """Run ``tympani sync``; 0 all trials synced, 2 some failed on bad input, 1 on a bug."""
-    from pipeline.sync import SyncConfig, sync_manifest, write_sync
-    from vision.errors import InputError
+    from tympani.pipeline.sync import SyncConfig, sync_manifest, write_sync
+    from tympani.vision.errors import InputError
 
     if args.max_gap_frames < 1:
         raise InputError("--max-gap-frames", "must be >= 1")
@@ -134,7 +134,7 @@ def _simulated(args: argparse.Namespace):
     if args.simulated:
         import pandas as pd
 
-        from vision.errors import InputError
+        from tympani.vision.errors import InputError
 
         path = Path(args.simulated)
         if not path.is_file():
@@ -150,12 +150,12 @@ def _simulated(args: argparse.Namespace):
     if str(args.scenario).lower() == "none":
         return None
     try:
-        from pipeline.paper import SCENARIOS, simulate
+        from tympani.pipeline.paper import SCENARIOS, simulate
     except ImportError:  # pragma: no cover - the model is part of the package
         return None
     name = str(args.scenario).upper()
     if name not in SCENARIOS:
-        from vision.errors import InputError
+        from tympani.vision.errors import InputError
 
         raise InputError("--scenario", f"unknown scenario {args.scenario!r}; choose from {', '.join(SCENARIOS)} or none")
     return lambda speeds: simulate(name, speeds)
@@ -163,8 +163,8 @@ def _simulated(args: argparse.Namespace):
 
 def run_bounds(args: argparse.Namespace) -> int:
     """Run ``tympani bounds``; 0 on success, 2 on bad input (no speed could be fitted)."""
-    from pipeline.bounds import BoundsConfig, fit_bounds, form_label, read_synced, single_trial_speeds, write_bounds
-    from vision.errors import InputError
+    from tympani.pipeline.bounds import BoundsConfig, fit_bounds, form_label, read_synced, single_trial_speeds, write_bounds
+    from tympani.vision.errors import InputError
 
     cfg = BoundsConfig(level=args.level, se=args.se, angle=args.angle)
     synced = read_synced(args.synced)
@@ -178,7 +178,7 @@ def run_bounds(args: argparse.Namespace) -> int:
     simulated = None if args.no_figures or args.angle != "theta_con" else _simulated(args)
     figures = []
     if not args.no_figures:
-        from pipeline.figures import write_figures
+        from tympani.pipeline.figures import write_figures
 
         figures = [p.name for p in write_figures(synced, fits, args.out, simulated=simulated)]
     paths = write_bounds(fits, skipped, args.out, cfg=cfg, input_path=args.synced, figures=figures)

@@ -105,7 +105,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-from vision.geometry import (
+from tympani.vision.geometry import (
     DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
     ElectrodeArray,
@@ -114,7 +114,7 @@ from vision.geometry import (
     channel_width,
     entry_frame,
 )
-from vision.rendering import ContactPolicy, random_policy
+from tympani.vision.rendering import ContactPolicy, random_policy
 
 from .friction import (
     DEFAULT_FRICTION_MODE,

@@ -1,7 +1,7 @@
 """Small stand-ins for registration and measurement, and tiny test videos.
 
 The batch/CLI tests check plumbing (streaming, re-registration, files, exit codes), not vision,
-so they replace ``vision.registration.register/check`` and ``vision.angles.measure_frame`` with
+so they replace ``tympani.vision.registration.register/check`` and ``tympani.vision.angles.measure_frame`` with
 fakes driven by simple image statistics:
 
 - registration fails ("no phantom found") on a black first frame;
@@ -18,16 +18,13 @@ compression.
 
 from __future__ import annotations
 
-import sys
-import types
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-import vision
-from vision.geometry import CameraPose
+from tympani.vision.geometry import CameraPose
 
 W, H = 64, 48
 
@@ -121,21 +118,9 @@ class FakeConfig:
 
 
 def install(monkeypatch) -> None:
-    """Replace registration and measurement with the fakes.
+    """Replace registration and measurement with the fakes."""
+    from tympani.vision import angles as ang, registration as reg
 
-    Works before the real modules exist (or while they are broken): a stub module with the
-    same names is put in their place.
-    """
-    for name in ("registration", "angles"):
-        full = f"vision.{name}"
-        try:
-            __import__(full)
-        except Exception:
-            stub = types.ModuleType(full)
-            stub.MeasureConfig = stub.RegistrationConfig = FakeConfig
-            monkeypatch.setitem(sys.modules, full, stub)
-            monkeypatch.setattr(vision, name, stub, raising=False)
-    reg, ang = sys.modules["vision.registration"], sys.modules["vision.angles"]
     monkeypatch.setattr(reg, "register", fake_register, raising=False)
     monkeypatch.setattr(reg, "check", fake_check, raising=False)
     monkeypatch.setattr(reg, "RegistrationError", FakeRegistrationError, raising=False)
@@ -145,7 +130,7 @@ def install(monkeypatch) -> None:
 
 
 def fake_config(**kwargs):
-    from pipeline.batch import ExtractConfig
+    from tympani.pipeline.batch import ExtractConfig
 
     return ExtractConfig(measure=FakeConfig("measure"), registration=FakeConfig("registration"), **kwargs)
 

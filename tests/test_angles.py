@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vision.angles import (
+from tympani.vision.angles import (
     FrameMeasurement,
     MeasureConfig,
     MeasurePlan,
@@ -33,7 +33,7 @@ from vision.angles import (
     measure_frames_batch,
     prepare_measurement,
 )
-from vision.geometry import (
+from tympani.vision.geometry import (
     DEFAULT_PHANTOM,
     CameraPose,
     ElectrodeArray,
@@ -42,7 +42,7 @@ from vision.geometry import (
     channel_width,
     entry_frame,
 )
-from vision.rendering import (
+from tympani.vision.rendering import (
     Appearance,
     ArrayShape,
     ContactPolicy,
@@ -307,8 +307,8 @@ def test_table_iii_triples_are_measured_back(frame: int) -> None:
     table. All six fit the planar phantom; the last two (theta_tip 4.38 and 4.47 rad) need 16.1
     and 16.3 mm of array in the channel, more than the paper's 15 mm (on this planar spiral the
     tip reaches about 4.0 rad at 15 mm)."""
-    from pipeline.paper import TABLE_III
-    from vision.registration import register
+    from tympani.pipeline.paper import TABLE_III
+    from tympani.vision.registration import register
 
     row = TABLE_III.iloc[frame]
     assert abs(row.theta_tip - row.theta_bot - row.theta_con) <= 0.01 + 1e-9
@@ -613,8 +613,8 @@ def test_plan_samples_where_the_lens_puts_its_points():
     """prepare_measurement(lens=...) moves the strip's sampling points by the lens and nothing
     else; a frame recorded through a barrel lens is measured with the ideal pose as a frame of
     the ideal camera is."""
-    from vision.frames import LensCalibration
-    from vision.rendering import distort
+    from tympani.vision.frames import LensCalibration
+    from tympani.vision.rendering import distort
 
     pose = CameraPose(330.0, 230.0, 0.4, 22.0, False)
     plain = prepare_measurement(pose, (H, W))
@@ -637,7 +637,7 @@ def test_plan_samples_where_the_lens_puts_its_points():
 def _registered_views(rng: np.random.Generator, pose: CameraPose, nuisance: Nuisance, depths: tuple[float, ...]):
     """Render one random-looking scene at ``depths`` (mm), register it from its first frame and
     measure every frame: yields (true state, measurement)."""
-    from vision.registration import register
+    from tympani.vision.registration import register
 
     scene = Scene(pose, W, H, random_appearance(rng), nuisance, rng=rng)
     reg = None

@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 
-from vision import angles as angles_mod
-from vision.angles import FrameMeasurement, measure_frame, measure_frames_batch, prepare_measurement
-from vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
+from tympani.vision import angles as angles_mod
+from tympani.vision.angles import FrameMeasurement, measure_frame, measure_frames_batch, prepare_measurement
+from tympani.vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
 
 W, H = 640, 480
 DEPTHS_MM = (-40.0, -7.0, -2.0, 3.0, 8.0, 12.0, 16.0, 20.0)

@@ -19,8 +19,8 @@ import pandas as pd
 import pytest
 
 import pipeline_fakes as fakes
-from pipeline import batch
-from pipeline.batch import (
+from tympani.pipeline import batch
+from tympani.pipeline.batch import (
     ANGLE_COLUMNS,
     ExtractConfig,
     VideoItem,
@@ -32,9 +32,9 @@ from pipeline.batch import (
     process_video,
     read_manifest,
 )
-from pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
-from vision.errors import InputError
-from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
+from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
+from tympani.vision.errors import InputError
+from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
 
 REGISTRATION_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
 
@@ -296,9 +296,9 @@ def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
     table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0))
     assert table["ok"].all()
     # the command line: --glitch-rad reaches the extraction; a negative value is a usage error
-    from pipeline.cli import main
+    from tympani.pipeline.cli import main
 
-    monkeypatch.setattr("pipeline.cli._extract_config", lambda args: fakes.fake_config(
+    monkeypatch.setattr("tympani.pipeline.cli._extract_config", lambda args: fakes.fake_config(
         glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol))
     for rad, ok in (("0.25", False), ("0", True)):
         assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad,
@@ -315,14 +315,14 @@ def test_registration_failure_is_input_error(tmp_path, fake_vision):
 
 
 def test_measurement_exception_keeps_the_row(tmp_path, monkeypatch, fake_vision):
-    import vision.angles
+    from tympani.vision import angles
 
     def flaky(gray, registration, phantom, array, cfg):
         if gray[8:].mean() > 100:
             raise ValueError("boom")
         return fakes.fake_measure_frame(gray, registration, phantom, array, cfg)
 
-    monkeypatch.setattr(vision.angles, "measure_frame", flaky)
+    monkeypatch.setattr(angles, "measure_frame", flaky)
     table, _ = extract_video(fakes.write_video(tmp_path / "f.mp4", n=12), fake_vision)
     failed = table[~table["ok"]]
     assert len(table) == 12 and len(failed) > 0
@@ -520,7 +520,7 @@ def test_read_manifest_missing_file(tmp_path):
 
 
 def test_annotate_frame_draws_on_a_copy():
-    from vision.drawing import annotate_frame
+    from tympani.vision.drawing import annotate_frame
 
     reg = fakes.FakeRegistration(fakes.CameraPose(320, 240, 0.3, 20.0, mirrored=False))
     image = np.full((480, 640), 90, np.uint8)
@@ -533,7 +533,7 @@ def test_annotate_frame_draws_on_a_copy():
 
 
 def test_text_stays_legible_on_small_frames():
-    from vision.drawing import draw_text
+    from tympani.vision.drawing import draw_text
 
     for width, min_rows in ((320, 8), (640, 9), (1280, 16)):  # Hershey simplex: about 8 px tall at 0.36
         image = np.full((width * 3 // 4, width, 3), 100, np.uint8)
@@ -543,7 +543,7 @@ def test_text_stays_legible_on_small_frames():
 
 
 def test_annotate_video_with_labels(tmp_path, fake_vision):
-    from pipeline.annotate import annotate_video, labels_frame, parse_label
+    from tympani.pipeline.annotate import annotate_video, labels_frame, parse_label
 
     video = fakes.write_video(tmp_path / "an.mp4", n=12)
     labels = labels_frame([parse_label(["4", "tip=40,20", "bot=30,30"]), parse_label(["9", "tip=50,10"]),
@@ -565,7 +565,7 @@ def test_annotate_video_with_labels(tmp_path, fake_vision):
 
 
 def test_parse_label_errors():
-    from pipeline.annotate import parse_label
+    from tympani.pipeline.annotate import parse_label
 
     for tokens in (["x", "tip=1,2"], ["3", "tip=1"], ["3", "nose=1,2"], ["3"]):
         with pytest.raises(InputError):
@@ -609,7 +609,7 @@ def test_batched_measurement_equals_one_at_a_time(tmp_path):
     """Real vision on a rendered video, with checks every 7 frames: measuring 8 frames at a
     time (vision.angles.measure_frames_batch), or as many as fit in 1 MiB (3 frames of
     640x480), gives the table of measuring one at a time."""
-    from pipeline.bench import render_bench_video
+    from tympani.pipeline.bench import render_bench_video
 
     video = render_bench_video(tmp_path / "r.mp4", n_frames=30, seed=3)
     one, _ = extract_video(video, ExtractConfig(measure_batch=1, recheck_every=7))
@@ -627,8 +627,8 @@ def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
     """A phantom filmed at 12 px/mm (the array's tip 7.2 px wide, under MeasureConfig.min_tip_px):
     registration works (measured: 11.9974 px/mm), every frame is refused with the reason, and
     the log says it once."""
-    from vision.geometry import CameraPose
-    from vision.rendering import VideoSpec, render_video
+    from tympani.vision.geometry import CameraPose
+    from tympani.vision.rendering import VideoSpec, render_video
 
     pose = CameraPose(330.0, 250.0, 0.4, 12.0, mirrored=False)
     video = tmp_path / "far.mp4"
@@ -642,7 +642,7 @@ def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
 
 
 def test_array_width_pools_the_measured_frames():
-    from pipeline.batch import array_width
+    from tympani.pipeline.batch import array_width
 
     rows = [{"ok": True, "width_ratio": 1.2}] * 9
     rows += [{"ok": False, "width_ratio": 5.0}, {"ok": True, "width_ratio": float("nan")}, {"ok": True}]  # none counts

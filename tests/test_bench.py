@@ -7,9 +7,9 @@ import os
 
 import pytest
 
-from pipeline.bench import _one_cpu, SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
-from pipeline.cli import main
-from vision.frames import open_frames
+from tympani.pipeline.bench import _one_cpu, SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
+from tympani.pipeline.cli import main
+from tympani.vision.frames import open_frames
 
 
 @pytest.fixture(scope="module")
@@ -109,8 +109,8 @@ def test_bench_command_skips_sections(capsys, tiny_video):
 
 def test_render_bench_video_size_keeps_the_phantom(tmp_path):
     """A larger frame shows the same phantom (same scale, px/mm): the registration finds it."""
-    from vision.frames import to_gray
-    from vision.registration import register
+    from tympani.vision.frames import to_gray
+    from tympani.vision.registration import register
 
     poses = []
     for size in ((640, 480), (960, 600)):
@@ -126,7 +126,7 @@ def test_render_bench_video_noise_is_a_cameras(tmp_path):
     otherwise the same frames. The noisy one is a bigger file: more to decode."""
     import numpy as np
 
-    from vision.frames import to_gray
+    from tympani.vision.frames import to_gray
 
     clean = render_bench_video(tmp_path / "clean.mp4", n_frames=4, seed=0, noise_sigma=0.0)
     noisy = render_bench_video(tmp_path / "noisy.mp4", n_frames=4, seed=0)

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 import pipeline_fakes as fakes
-from pipeline.cli import COMMANDS, main
+from tympani.pipeline.cli import COMMANDS, main
 
 
 @pytest.fixture
@@ -44,7 +44,7 @@ def test_help_on_every_command(capsys):
 
 def test_console_script_help():
     script = Path(sys.executable).parent / "tympani"
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "pipeline.cli"]
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "tympani.pipeline.cli"]
     done = subprocess.run([*cmd, "--help"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and "extract" in done.stdout
 
@@ -112,23 +112,23 @@ def test_extract_from_manifest(capsys, tmp_path, fake_vision):
 
 
 def test_interrupt_is_exit_130(capsys, tmp_path, monkeypatch, fake_vision):
-    import pipeline.batch
+    from tympani.pipeline import batch
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(pipeline.batch, "extract_batch", interrupted)
+    monkeypatch.setattr(batch, "extract_batch", interrupted)
     code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"))
     assert code == 130 and "interrupted" in err
 
 
 def test_unexpected_error_is_exit_1_one_line_and_debug_shows_traceback(capsys, tmp_path, monkeypatch, fake_vision):
-    import pipeline.batch
+    from tympani.pipeline import batch
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("oops\nsecond line")
 
-    monkeypatch.setattr(pipeline.batch, "extract_batch", broken)
+    monkeypatch.setattr(batch, "extract_batch", broken)
     code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"))
     assert code == 1 and "ZeroDivisionError: oops second line" in _one_line_error(err)
     code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"), "--debug")
@@ -136,12 +136,12 @@ def test_unexpected_error_is_exit_1_one_line_and_debug_shows_traceback(capsys, t
 
 
 def test_bug_inside_a_video_is_exit_1(capsys, tmp_path, monkeypatch, fake_vision):
-    import vision.registration
+    from tympani.vision import registration
 
     def broken(*args, **kwargs):
         raise RuntimeError("registration bug")
 
-    monkeypatch.setattr(vision.registration, "register", broken)
+    monkeypatch.setattr(registration, "register", broken)
     video = fakes.write_video(tmp_path / "v.mp4", n=3)
     code, _, err = _run(capsys, "extract", str(video), "--out", str(tmp_path / "out"), "-q")
     assert code == 1 and "RuntimeError: registration bug" in _one_line_error(err)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vision.edges import (
+from tympani.vision.edges import (
     as_float_gray,
     auto_sigma,
     auto_thresholds,

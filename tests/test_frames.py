@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from pipeline_fakes import H, W, frame_image, write_folder, write_video
-from vision.errors import InputError, is_input_error
-from vision.frames import Frame, FolderFrames, LensCalibration, VideoFrames, open_frames, to_gray, undistorter
+from tympani.vision.errors import InputError, is_input_error
+from tympani.vision.frames import Frame, FolderFrames, LensCalibration, VideoFrames, open_frames, to_gray, undistorter
 
 
 def _level(frame: Frame) -> float:
@@ -279,7 +279,7 @@ def test_calibration_reads_opencv_json_and_refuses_bad_files(tmp_path):
 
 def test_undistortion_inverts_the_lens():
     """A grid of lines bent by a barrel lens (vision.rendering.distort) comes back straight."""
-    from vision.rendering import distort
+    from tympani.vision.rendering import distort
 
     cal = LensCalibration(tuple(map(tuple, _BARREL["camera_matrix"])), tuple(_BARREL["dist_coeffs"][0]), (400, 300))
     ideal = np.full((300, 400), 40, np.uint8)
@@ -301,7 +301,7 @@ def test_distort_points_is_where_the_lens_records_a_point():
     """A small bright dot drawn at ideal points shows up, through vision.rendering.distort, at
     LensCalibration.distort_points of them (measured: within 0.011 px); the identity lens leaves
     points where they are."""
-    from vision.rendering import distort
+    from tympani.vision.rendering import distort
 
     cal = LensCalibration(tuple(map(tuple, _BARREL["camera_matrix"])), tuple(_BARREL["dist_coeffs"][0]), (400, 300))
     ideal_pts = np.array([[60.0, 50.0], [340.0, 70.0], [205.0, 148.0], [90.0, 250.0], [330.0, 260.0]])

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.friction import (
+from tympani.pipeline.friction import (
     G_N,
     ContactGeometry,
     FrictionParams,
@@ -20,7 +20,7 @@ from pipeline.friction import (
     params_from_flat,
     stribeck,
 )
-from vision.geometry import DEFAULT_PHANTOM, entry_frame
+from tympani.vision.geometry import DEFAULT_PHANTOM, entry_frame
 
 PARAMS = FrictionParams(
     mu_s=0.18, mu_k=0.12, v_s_mm_s=1.5, delta_s=1.5, mu_v_s_per_mm=0.004, contact_width_mm=0.3,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from vision.geometry import (
+from tympani.vision.geometry import (
     DEFAULT_PHANTOM as P,
     CameraPose,
     ElectrodeArray,

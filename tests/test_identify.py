@@ -9,9 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.cli import main
-from pipeline.friction import FLAT_NAMES, FrictionParams, LinearPressure, arc_integrals, flat_params, force_from_integrals
-from pipeline.identify import (
+from tympani.pipeline.cli import main
+from tympani.pipeline.friction import FLAT_NAMES, FrictionParams, LinearPressure, arc_integrals, flat_params, force_from_integrals
+from tympani.pipeline.identify import (
     DEFAULT_FREE,
     FitOptions,
     _build,
@@ -24,7 +24,7 @@ from pipeline.identify import (
     synthetic_synced,
     validate_synced,
 )
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 TRUTH = FrictionParams(mu_s=0.18, mu_k=0.12, v_s_mm_s=3.0, delta_s=2.0, mu_v_s_per_mm=0.0, contact_width_mm=0.3,
                        p_tip_MPa=LinearPressure(0.01, 0.01), p_bot_MPa=LinearPressure(0.02, 0.02))

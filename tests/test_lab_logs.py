@@ -16,8 +16,8 @@ import pandas as pd
 import pytest
 
 from lab_logs import LabTrial, depth_at, lab_format, tip_of_depth, write_lab_experiment, write_lab_trial
-from pipeline.cli import main
-from pipeline.labstreams import Clock
+from tympani.pipeline.cli import main
+from tympani.pipeline.labstreams import Clock
 
 
 def _run(capsys, *argv):

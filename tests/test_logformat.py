@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from pipeline.logformat import AnglesFormat, ForceFormat, parse_log_format, read_log_format
-from vision.errors import InputError
+from tympani.pipeline.logformat import AnglesFormat, ForceFormat, parse_log_format, read_log_format
+from tympani.vision.errors import InputError
 
 FULL = """
 [force]                 # the force log's own columns

@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
-from vision.edges import to_gray
-from vision.geometry import DEFAULT_PHANTOM, CameraPose, backbone_frame, channel_polygon, entry_frame, entry_walls
-from vision.registration import (
+from tympani.vision.edges import to_gray
+from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, backbone_frame, channel_polygon, entry_frame, entry_walls
+from tympani.vision.registration import (
     Registration,
     RegistrationConfig,
     RegistrationError,
@@ -30,7 +30,7 @@ from vision.registration import (
     wall_fit,
     wall_model,
 )
-from vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
+from tympani.vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
 
 POSE_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", "mirrored", "residual_px"}
 

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from vision.angles import outer_wall_gap
-from vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM as P, CameraPose, point_angle
-from vision.rendering import (
+from tympani.vision.angles import outer_wall_gap
+from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM as P, CameraPose, point_angle
+from tympani.vision.rendering import (
     Appearance,
     ArrayShape,
     ContactPolicy,
@@ -120,7 +120,7 @@ def test_mirrored_pose_renders_the_flipped_image():
 
 def test_random_pose_keeps_the_channel_in_frame():
     rng = np.random.default_rng(5)
-    from vision.geometry import channel_polygon
+    from tympani.vision.geometry import channel_polygon
 
     for _ in range(30):
         w, h = (640, 480) if rng.random() < 0.5 else (1280, 720)
@@ -277,7 +277,7 @@ def test_free_bubbles_drift_inside_the_channel_fluid():
         u, lat = path.locate(centre)
         assert 0.15 - 1e-9 <= radius and abs(lat) + radius <= path.half_width(u) + 1e-6
     changed = np.abs(_grey(scene.render(st, 0.0)) - _grey(scene.render(st, 5.0))) > 3
-    from vision.geometry import channel_polygon
+    from tympani.vision.geometry import channel_polygon
 
     inside = np.zeros((480, 640), np.uint8)
     cv2.fillPoly(inside, [np.round(ZOOM.to_image(channel_polygon())).astype(np.int32)], 1)

@@ -77,8 +77,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import pipeline.io
-from pipeline.cli import main
+from tympani.pipeline import io as pipeline_io
+from tympani.pipeline.cli import main
 
 #: Angles-table columns that record how long a frame took, not what was measured.
 TIMING_COLUMNS = ("time_ms",)
@@ -116,7 +116,7 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 def rendered(tmp_path_factory) -> dict:
     """Two short rendered videos (10 frames, 400x300) with a manifest, force logs and truth,
     and their angles tables from an undisturbed run (the reference)."""
-    from pipeline.experiment import ExperimentConfig, render_experiment
+    from tympani.pipeline.experiment import ExperimentConfig, render_experiment
 
     root = tmp_path_factory.mktemp("robust")
     cfg = ExperimentConfig(speeds_mm_s=(3.0, 7.5), trials=1, max_frames=10, width=400, height=300, nuisance=0.2)
@@ -254,7 +254,7 @@ def _render_frames(path: Path, spec, scenes, hide=(), blank=()) -> pd.DataFrame:
     """Write ``spec``'s insertion to an mp4, frame i drawn by ``scenes(i)``; frames in ``hide``
     get the inserted array painted over in the fluid's grey (as if lost in glare), frames in
     ``blank`` are a uniform grey (a hand over the lens). Returns truth."""
-    from vision.rendering import pose_at_depth
+    from tympani.vision.rendering import pose_at_depth
 
     fps = spec.effective_fps()
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (spec.width, spec.height))
@@ -283,9 +283,9 @@ def test_lens_distortion_is_undone_with_a_calibration(tmp_path, capsys):
     tip comes out as on an ideal camera (measured |theta_tip error|: median 0.0095 rad plain,
     0.0014 calibrated; max 0.023 and 0.040, both on frame 10). A calibration of another
     frame size fails that video alone, and a bad calibration file is a one-line error."""
-    from vision.frames import LensCalibration
-    from vision.geometry import CameraPose
-    from vision.rendering import Nuisance, Scene, VideoSpec, distort
+    from tympani.vision.frames import LensCalibration
+    from tympani.vision.geometry import CameraPose
+    from tympani.vision.rendering import Nuisance, Scene, VideoSpec, distort
 
     cal = LensCalibration(((520.0, 0.0, 200.0), (0.0, 520.0, 150.0), (0.0, 0.0, 1.0)), (-0.3, 0.0, 0.0, 0.0, 0.0),
                           (400, 300))
@@ -338,8 +338,8 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
     (without the allowance: 0.66 rad)."""
     from dataclasses import replace
 
-    from vision.geometry import DEFAULT_ARRAY, CameraPose
-    from vision.rendering import Nuisance, VideoSpec, render_video
+    from tympani.vision.geometry import DEFAULT_ARRAY, CameraPose
+    from tympani.vision.rendering import Nuisance, VideoSpec, render_video
 
     wide = replace(DEFAULT_ARRAY, tip_diameter_mm=0.69, base_diameter_mm=1.38)
     spec = VideoSpec(pose=CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False), width=400, height=300, fps=10.0,
@@ -373,8 +373,8 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
     registration is found and frames 13-14 are measured again (measured: new pose off by 0.004
     and 0.020 px, 0.00019 rad; after the bump |theta_tip error| median 0.0018 rad, max 0.014,
     |theta_bot error| median 0.016 rad)."""
-    from vision.geometry import CameraPose
-    from vision.rendering import Nuisance, Scene, VideoSpec
+    from tympani.vision.geometry import CameraPose
+    from tympani.vision.rendering import Nuisance, Scene, VideoSpec
 
     before = CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False)
     after = CameraPose(216.0, 141.0, 0.41, 17.3, mirrored=False)  # 13 px, 3.4 degrees, 1.8 % off
@@ -415,8 +415,8 @@ def test_view_blocked_mid_way_is_not_measured_then_resumes(tmp_path, capsys):
     verify. The try at 21 finds the old registration fits again, and going back, 13-14 (seen
     before the check) are marked not ok too. (Measured on the other frames: |theta_tip error|
     at most 0.0034 rad.)"""
-    from vision.geometry import CameraPose
-    from vision.rendering import Nuisance, Scene, VideoSpec
+    from tympani.vision.geometry import CameraPose
+    from tympani.vision.rendering import Nuisance, Scene, VideoSpec
 
     pose = CameraPose(205.0, 148.0, 0.35, 17.0, mirrored=False)
     spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=2.0,
@@ -446,8 +446,8 @@ def test_view_blocked_mid_way_is_not_measured_then_resumes(tmp_path, capsys):
 def test_frame_with_the_array_hidden(tmp_path, capsys):
     """A frame that does not show the array keeps its row, not ok, with a reason; the others are
     measured (measured: |theta_tip error| at most 0.0036 rad)."""
-    from vision.geometry import CameraPose
-    from vision.rendering import Scene, VideoSpec
+    from tympani.vision.geometry import CameraPose
+    from tympani.vision.rendering import Scene, VideoSpec
 
     pose = CameraPose(200.0, 150.0, -0.6, 18.0, mirrored=True)
     spec = VideoSpec(pose=pose, width=400, height=300, fps=10.0, speed_mm_s=1.0, start_depth_mm=3.0,
@@ -597,7 +597,7 @@ def test_killed_run_resumes(rendered, tmp_path):
         src = rendered["videos"][k % 2]
         videos.append(Path(shutil.copy(src, tmp_path / f"t{k}_{src.stem}.mp4")))
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "pipeline.cli", "extract", *map(str, videos), "--out", str(out), "-q"]
+    cmd = [sys.executable, "-m", "tympani.pipeline.cli", "extract", *map(str, videos), "--out", str(out), "-q"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while not list(out.glob("*.provenance.json")) and proc.poll() is None and time.monotonic() < deadline:
@@ -629,14 +629,14 @@ def test_killed_run_resumes(rendered, tmp_path):
 
 def _refuse_writes_in(monkeypatch, folder: Path, error: int) -> None:
     """Make every new file in ``folder`` fail as the OS would (root ignores permission bits)."""
-    real = pipeline.io._create_temp
+    real = pipeline_io._create_temp
 
     def create_temp(where, name):
         if Path(where).resolve() == folder.resolve():
             raise OSError(error, os.strerror(error), str(Path(where) / name))
         return real(where, name)
 
-    monkeypatch.setattr(pipeline.io, "_create_temp", create_temp)
+    monkeypatch.setattr(pipeline_io, "_create_temp", create_temp)
 
 
 def test_read_only_output_folder(rendered, logs, tmp_path, capsys, monkeypatch):
@@ -709,7 +709,7 @@ class _FullDisk:
 def test_disk_full_while_writing(rendered, tmp_path, capsys, monkeypatch):
     good, victim = rendered["videos"]
     target = tmp_path / "out" / f"{victim.stem}.angles.csv"
-    real_create, real_fdopen = pipeline.io._create_temp, os.fdopen
+    real_create, real_fdopen = pipeline_io._create_temp, os.fdopen
     doomed: set[int] = set()
     hits: list[int] = []
 
@@ -727,8 +727,8 @@ def test_disk_full_while_writing(rendered, tmp_path, capsys, monkeypatch):
             return _FullDisk(fh, room=200)
         return fh
 
-    monkeypatch.setattr(pipeline.io, "_create_temp", create_temp)
-    monkeypatch.setattr(pipeline.io.os, "fdopen", fdopen)
+    monkeypatch.setattr(pipeline_io, "_create_temp", create_temp)
+    monkeypatch.setattr(pipeline_io.os, "fdopen", fdopen)
     code, stdout, err = _run(capsys, "extract", good, victim, "--out", tmp_path / "out", "-q")
     assert hits, "the simulated full disk was never hit"
     assert code == 2 and _one_line(err) == f"tympani: {target}: cannot write (No space left on device)"

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from lab_logs import LabTrial, depth_at, force_of_tip, tip_of_depth
-from pipeline.cli import main
+from tympani.pipeline.cli import main
 
 rosbags = pytest.importorskip("rosbags", reason="the optional rosbags package (pip install 'tympani[ros]')")
 

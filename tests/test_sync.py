@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from force_synth import Trial, make_trial, write_experiment, write_trial
-from pipeline.cli import main
-from pipeline.sync import (
+from tympani.pipeline.cli import main
+from tympani.pipeline.sync import (
     SYNC_COLUMNS,
     SyncConfig,
     estimate_offset,
@@ -22,7 +22,7 @@ from pipeline.sync import (
     sync_manifest,
     sync_trial,
 )
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 
 def _run(capsys, *argv):

@@ -10,11 +10,11 @@ import pandas as pd
 import pytest
 from scipy.optimize import least_squares
 
-from pipeline.cli import main
-from pipeline.effects import EFFECTS, EffectContext
-from pipeline.friction import stribeck
-from pipeline.paper import paper_params
-from pipeline.synthetic import (
+from tympani.pipeline.cli import main
+from tympani.pipeline.effects import EFFECTS, EffectContext
+from tympani.pipeline.friction import stribeck
+from tympani.pipeline.paper import paper_params
+from tympani.pipeline.synthetic import (
     HIDDEN_EFFECTS,
     PAPER_DROPS_PCT,
     NoiseConfig,
@@ -25,7 +25,7 @@ from pipeline.synthetic import (
     synthetic_dataset,
     write_experiment,
 )
-from vision.rendering import pose_at_depth
+from tympani.vision.rendering import pose_at_depth
 
 QUIET = NoiseConfig(white_g=0.0, ar_g=0.0, tare_sd_g=0.0, bits=0, angle_sd_rad=0.0)
 SPEEDS = (0.5, 1.5, 3.0, 5.0, 7.5)
@@ -73,7 +73,7 @@ def _dwell_ends(df: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
 
 
 def test_generators_cover_the_spec_names():
-    from pipeline.effects import effect_names
+    from tympani.pipeline.effects import effect_names
 
     assert set(HIDDEN_EFFECTS) == set(effect_names())
     for eff in HIDDEN_EFFECTS.values():
@@ -228,7 +228,7 @@ def test_peak_force_drop_table():
 
 
 def test_kinematics_agree_with_the_renderer():
-    from vision.rendering import random_policy
+    from tympani.vision.rendering import random_policy
 
     policy = random_policy(np.random.default_rng(4))
     depths = np.array([-0.5, 1.0, 4.0, 7.0, 10.0, 13.0, 15.0])

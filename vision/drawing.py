@@ -17,7 +17,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import cv2
 import numpy as np
 
-from vision.geometry import CameraPose, Phantom, entry_walls
+from tympani.vision.geometry import CameraPose, Phantom, entry_walls
 
 __all__ = [
     "COLORS",

@@ -54,7 +54,7 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from vision.errors import InputError
+from tympani.vision.errors import InputError
 
 __all__ = [
     "Frame",
