@@ -105,9 +105,9 @@ from tympani.pipeline.data_needs import has_contact_angles, require
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
-from .diagnosis_experiments import splitting_experiments
-from .effects import EFFECTS, EffectContext
-from .friction import (
+from tympani.pipeline.diagnosis_experiments import splitting_experiments
+from tympani.pipeline.effects import EFFECTS, EffectContext
+from tympani.pipeline.friction import (
     DEFAULT_FRICTION_MODE,
     G_N,
     FrictionMode,
@@ -116,9 +116,9 @@ from .friction import (
     contact_geometry,
     stribeck,
 )
-from .identify import PARAM_BOUNDS, SYNCED_COLUMNS, not_moving, read_synced, validate_synced
-from .io import to_jsonable
-from .stats import correlation_from_covariance, gaussian_criteria, lag1_autocorrelation, least_squares_covariances
+from tympani.pipeline.identify import PARAM_BOUNDS, SYNCED_COLUMNS, not_moving, read_synced, validate_synced
+from tympani.pipeline.io import to_jsonable
+from tympani.pipeline.stats import correlation_from_covariance, gaussian_criteria, lag1_autocorrelation, least_squares_covariances
 
 __all__ = [
     "DiagnosisConfig",

@@ -38,9 +38,9 @@ from typing import Any, Mapping
 import numpy as np
 import pandas as pd
 
-from .diagnosis import DiagnosisConfig, candidates, diagnose, fit_candidate, trial_sse
-from .synthetic import NoiseConfig, synthetic_dataset
-from .synthetic_b import generate
+from tympani.pipeline.diagnosis import DiagnosisConfig, candidates, diagnose, fit_candidate, trial_sse
+from tympani.pipeline.synthetic import NoiseConfig, synthetic_dataset
+from tympani.pipeline.synthetic_b import generate
 
 __all__ = ["EvalConfig", "CaseSpec", "GeneratedCase", "FAMILIES", "family_a", "family_b", "case_specs", "run_case",
            "evaluate", "summarise", "format_evaluation", "NOISE_LEVELS", "VERDICT_COLUMNS"]

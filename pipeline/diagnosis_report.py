@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .diagnosis import PHASES, Diagnosis, diagnosis_to_json
+from tympani.pipeline.diagnosis import PHASES, Diagnosis, diagnosis_to_json
 
 __all__ = ["write_diagnosis", "report_markdown", "summary_line"]
 
@@ -156,7 +156,7 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
         lines.append("")
     if ds.notes:
         lines += ["## Notes on the data", ""] + [f"- {n}" for n in ds.notes] + [""]
-    from .diagnosis import kernel
+    from tympani.pipeline.diagnosis import kernel
 
     lines += ["## Candidate forms", "", "| candidate | form |", "|---|---|",
               "| base | the paper's force model (Eqs. 2-7) with the nominal friction law, pressures linear in "
@@ -299,7 +299,7 @@ def write_diagnosis(diag: Diagnosis, out_dir: str | os.PathLike, *, source: str 
     """
     from dataclasses import asdict
 
-    from .io import atomic_write_csv, atomic_write_json, atomic_write_text, provenance
+    from tympani.pipeline.io import atomic_write_csv, atomic_write_json, atomic_write_text, provenance
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

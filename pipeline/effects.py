@@ -24,7 +24,7 @@ import pandas as pd
 from scipy.signal import lfilter
 
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
-from .friction import DEFAULT_FRICTION_MODE, FrictionMode
+from tympani.pipeline.friction import DEFAULT_FRICTION_MODE, FrictionMode
 
 __all__ = ["EffectContext", "Effect", "EFFECTS", "effect_names", "bump_integrals", "first_order_lag"]
 

@@ -40,10 +40,10 @@ from tympani.vision.rendering import (
     render_video,
 )
 
-from .friction import FrictionParams, insertion_force
-from .io import atomic_write_csv, atomic_write_json
-from .paper import paper_params
-from .synthetic import TrialState, apply_hidden_effect, draw_effect_params, effect_truth, trial_name
+from tympani.pipeline.friction import FrictionParams, insertion_force
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json
+from tympani.pipeline.paper import paper_params
+from tympani.pipeline.synthetic import TrialState, apply_hidden_effect, draw_effect_params, effect_truth, trial_name
 
 __all__ = ["ExperimentConfig", "SensorConfig", "clean_forces_from_truth", "force_log_from_truth",
            "render_experiment"]

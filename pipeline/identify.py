@@ -77,7 +77,7 @@ from tympani.pipeline.data_needs import require
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
-from .friction import (
+from tympani.pipeline.friction import (
     FLAT_NAMES,
     G_N,
     ArcIntegrals,
@@ -93,8 +93,8 @@ from .friction import (
     params_from_flat,
     stribeck,
 )
-from .io import atomic_write_csv, atomic_write_json, provenance, to_jsonable
-from .stats import (
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance, to_jsonable
+from tympani.pipeline.stats import (
     correlation_from_covariance,
     effective_sample_size,
     gaussian_criteria,

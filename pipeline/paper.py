@@ -58,7 +58,7 @@ from scipy.optimize import least_squares, nnls
 
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 
-from .friction import (
+from tympani.pipeline.friction import (
     DEFAULT_FRICTION_MODE,
     G_N,
     ArcIntegrals,

@@ -116,7 +116,7 @@ from tympani.vision.geometry import (
 )
 from tympani.vision.rendering import ContactPolicy, random_policy
 
-from .friction import (
+from tympani.pipeline.friction import (
     DEFAULT_FRICTION_MODE,
     G_N,
     ArcIntegrals,
@@ -130,8 +130,8 @@ from .friction import (
     force_from_integrals,
     stribeck,
 )
-from .io import atomic_write_csv, atomic_write_json
-from .paper import PAPER_DROPS_PCT, paper_params
+from tympani.pipeline.io import atomic_write_csv, atomic_write_json
+from tympani.pipeline.paper import PAPER_DROPS_PCT, paper_params
 
 __all__ = [
     "NoiseConfig",

@@ -26,7 +26,7 @@ from typing import Any, Callable, Protocol
 import cv2
 import numpy as np
 
-from .geometry import (
+from tympani.vision.geometry import (
     DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
     CameraPose,

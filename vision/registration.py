@@ -56,7 +56,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from .edges import (
+from tympani.vision.edges import (
     EdgeMap,
     as_float_gray,
     detect_edges,
@@ -68,7 +68,7 @@ from .edges import (
     subpixel_edges,
     to_gray,
 )
-from .geometry import DEFAULT_PHANTOM, CameraPose, Phantom, backbone_frame, entry_frame, entry_walls
+from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, Phantom, backbone_frame, entry_frame, entry_walls
 
 __all__ = [
     "RegistrationConfig",

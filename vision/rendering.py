@@ -29,9 +29,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import brentq
 
-from .angles import ContactAngles, contact_angles
-from .frames import LensCalibration
-from .geometry import (
+from tympani.vision.angles import ContactAngles, contact_angles
+from tympani.vision.frames import LensCalibration
+from tympani.vision.geometry import (
     DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
     CameraPose,
