@@ -11,9 +11,9 @@ in the output folder (columns and keys: ``docs/file-formats.md``)::
     diagnosis/diagnosis.json     the sim-to-real diagnosis, diagnosis.md, its figures
     trials.csv                   one row a manifest trial: what each stage made of it
     run.json                     stages (status, seconds, message), errors, provenance
-    report.html                  the self-contained report (pipeline.report)
+    report.html                  the self-contained report (pipeline.report.page)
 
-Resuming: extraction skips videos whose outputs exist (:func:`pipeline.batch.extract_batch`);
+Resuming: extraction skips videos whose outputs exist (:func:`pipeline.extract.batch.extract_batch`);
 every later stage is skipped when its outputs are newer than its inputs and it last ran with the
 same settings (recorded in ``run.json``). ``overwrite=True`` redoes everything.
 
@@ -33,7 +33,7 @@ from typing import Any, Callable, Sequence
 
 import pandas as pd
 
-from tympani.pipeline.data_needs import NotEnoughData, has_contact_angles
+from tympani.pipeline.model.data_needs import NotEnoughData, has_contact_angles
 from tympani.vision.errors import InputError, is_input_error, one_line
 
 __all__ = ["RunConfig", "RunResult", "StageRecord", "run_pipeline", "is_fresh", "RUN_JSON", "TRIALS_CSV"]
@@ -46,31 +46,31 @@ STAGES = ("extract", "sync", "fit", "bounds", "diagnose", "report")
 
 
 def _default_extract() -> Any:
-    from tympani.pipeline.batch import ExtractConfig
+    from tympani.pipeline.extract.batch import ExtractConfig
 
     return ExtractConfig()
 
 
 def _default_sync() -> Any:
-    from tympani.pipeline.sync import SyncConfig
+    from tympani.pipeline.force.sync import SyncConfig
 
     return SyncConfig()
 
 
 def _default_fit() -> Any:
-    from tympani.pipeline.identify import FitOptions
+    from tympani.pipeline.model.identify import FitOptions
 
     return FitOptions()
 
 
 def _default_bounds() -> Any:
-    from tympani.pipeline.bounds import BoundsConfig
+    from tympani.pipeline.model.bounds import BoundsConfig
 
     return BoundsConfig()
 
 
 def _default_diagnosis() -> Any:
-    from tympani.pipeline.diagnosis import DiagnosisConfig
+    from tympani.pipeline.diagnosis.core import DiagnosisConfig
 
     return DiagnosisConfig()
 
@@ -87,18 +87,18 @@ class RunConfig:
         Redo every stage, even when its outputs are up to date.
     progress : bool
         Progress bars on stderr.
-    extract : pipeline.batch.ExtractConfig
-    sync : pipeline.sync.SyncConfig
-    fit : pipeline.identify.FitOptions
-    bounds : pipeline.bounds.BoundsConfig
-    diagnosis : pipeline.diagnosis.DiagnosisConfig
+    extract : pipeline.extract.batch.ExtractConfig
+    sync : pipeline.force.sync.SyncConfig
+    fit : pipeline.model.identify.FitOptions
+    bounds : pipeline.model.bounds.BoundsConfig
+    diagnosis : pipeline.diagnosis.core.DiagnosisConfig
     scenario : str or None
         Scenario of TABLE I simulated for the force-vs-theta_con overlay (``"S1"``..``"S4"``),
         or None for no overlay.
     fps : float or None
         Frame rate (frames/s) for videos whose manifest row gives none (folders of frames).
     log_format : str or None
-        Log format file (:mod:`pipeline.logformat`) for the manifest rows whose ``format`` cell is blank.
+        Log format file (:mod:`pipeline.force.logformat`) for the manifest rows whose ``format`` cell is blank.
     """
 
     workers: int = 1
@@ -253,7 +253,7 @@ def _log(cfg: RunConfig, text: str) -> None:
 
 def _extract(manifest: pd.DataFrame, out: Path, cfg: RunConfig, rec: StageRecord, executor: Any = None) -> pd.DataFrame:
     """Angles tables of the manifest's videos (rows that give an angles table are not extracted)."""
-    from tympani.pipeline.batch import SUMMARY_COLUMNS, extract_batch
+    from tympani.pipeline.extract.batch import SUMMARY_COLUMNS, extract_batch
     from tympani.pipeline.io import atomic_write_csv
 
     rows = manifest[manifest["video"].notna() & manifest["angles"].isna()]
@@ -280,7 +280,7 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
     """The synced table; returns the sync report (``synced.sync.json`` content)."""
     import json
 
-    from tympani.pipeline.sync import report_path, sync_manifest, write_sync
+    from tympani.pipeline.force.sync import report_path, sync_manifest, write_sync
 
     table, report = out / "synced.csv", report_path(out / "synced.csv")
     angles_dir = out / "angles"
@@ -315,7 +315,7 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
 
 
 def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.identify import fit_synced, read_synced, write_fit
+    from tympani.pipeline.model.identify import fit_synced, read_synced, write_fit
 
     fit_dir = out / "fit"
     rec.settings = _settings(cfg.fit)
@@ -340,7 +340,7 @@ def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previou
 def _simulated(scenario: str | None) -> Callable | None:
     if scenario is None or str(scenario).lower() == "none":
         return None
-    from tympani.pipeline.paper import SCENARIOS, simulate
+    from tympani.pipeline.model.paper import SCENARIOS, simulate
 
     name = str(scenario).upper()
     if name not in SCENARIOS:
@@ -349,8 +349,8 @@ def _simulated(scenario: str | None) -> Callable | None:
 
 
 def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
-    from tympani.pipeline.figures import write_figures
+    from tympani.pipeline.model.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
+    from tympani.pipeline.report.figures import write_figures
 
     bdir = out / "bounds"
     figures = ["force_vs_theta_con.png", "log_force.png", "bounds.png"]
@@ -384,8 +384,8 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
 
 
 def _diagnose(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.diagnosis import diagnose, read_synced
-    from tympani.pipeline.diagnosis_report import summary_line, write_diagnosis
+    from tympani.pipeline.diagnosis.core import diagnose, read_synced
+    from tympani.pipeline.diagnosis.report import summary_line, write_diagnosis
 
     ddir = out / "diagnosis"
     rec.settings = _settings(cfg.diagnosis)
@@ -444,7 +444,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
     Parameters
     ----------
     manifest : DataFrame
-        From :func:`pipeline.batch.read_manifest`.
+        From :func:`pipeline.extract.batch.read_manifest`.
     out : Path
         Output folder (``angles/`` inside).
     extract : DataFrame
@@ -490,7 +490,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     Parameters
     ----------
     manifest : str or PathLike
-        Manifest CSV (:func:`pipeline.batch.read_manifest`).
+        Manifest CSV (:func:`pipeline.extract.batch.read_manifest`).
     out_dir : str or PathLike
         Output folder (created).
     cfg : RunConfig
@@ -499,7 +499,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
         The command line, recorded in ``run.json`` and the report.
     executor : object, optional
         Runs the extraction instead of ``cfg.workers`` local processes (e.g. a
-        ``dask.distributed.Client``; see :func:`pipeline.batch.extract_batch`).
+        ``dask.distributed.Client``; see :func:`pipeline.extract.batch.extract_batch`).
 
     Returns
     -------
@@ -510,14 +510,14 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     vision.errors.InputError
         The manifest itself is unusable (missing, bad header or value, a missing file).
     """
-    from tympani.pipeline.batch import read_manifest
+    from tympani.pipeline.extract.batch import read_manifest
     from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance
 
     t_start = time.perf_counter()
     mpath = Path(manifest)
     table = read_manifest(mpath)
     if cfg.log_format is not None:
-        from tympani.pipeline.logformat import read_log_format
+        from tympani.pipeline.force.logformat import read_log_format
 
         read_log_format(cfg.log_format)  # a bad --format is one error before anything runs
     out = Path(out_dir)
@@ -578,7 +578,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
                         errors=list(errors), seconds=round(time.perf_counter() - t_start, 3))
     atomic_write_json(out / RUN_JSON, record)
 
-    from tympani.pipeline.report import write_report
+    from tympani.pipeline.report.page import write_report
 
     rec = stages["report"]
     _log(cfg, "run: report")

@@ -130,7 +130,7 @@ def install(monkeypatch) -> None:
 
 
 def fake_config(**kwargs):
-    from tympani.pipeline.batch import ExtractConfig
+    from tympani.pipeline.extract.batch import ExtractConfig
 
     return ExtractConfig(measure=FakeConfig("measure"), registration=FakeConfig("registration"), **kwargs)
 

@@ -307,7 +307,7 @@ def test_table_iii_triples_are_measured_back(frame: int) -> None:
     table. All six fit the planar phantom; the last two (theta_tip 4.38 and 4.47 rad) need 16.1
     and 16.3 mm of array in the channel, more than the paper's 15 mm (on this planar spiral the
     tip reaches about 4.0 rad at 15 mm)."""
-    from tympani.pipeline.paper import TABLE_III
+    from tympani.pipeline.model.paper import TABLE_III
     from tympani.vision.registration import register
 
     row = TABLE_III.iloc[frame]

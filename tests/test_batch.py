@@ -19,8 +19,8 @@ import pandas as pd
 import pytest
 
 import pipeline_fakes as fakes
-from tympani.pipeline import batch
-from tympani.pipeline.batch import (
+from tympani.pipeline.extract import batch
+from tympani.pipeline.extract.batch import (
     ANGLE_COLUMNS,
     ExtractConfig,
     VideoItem,
@@ -543,7 +543,7 @@ def test_text_stays_legible_on_small_frames():
 
 
 def test_annotate_video_with_labels(tmp_path, fake_vision):
-    from tympani.pipeline.annotate import annotate_video, labels_frame, parse_label
+    from tympani.pipeline.extract.annotate import annotate_video, labels_frame, parse_label
 
     video = fakes.write_video(tmp_path / "an.mp4", n=12)
     labels = labels_frame([parse_label(["4", "tip=40,20", "bot=30,30"]), parse_label(["9", "tip=50,10"]),
@@ -565,7 +565,7 @@ def test_annotate_video_with_labels(tmp_path, fake_vision):
 
 
 def test_parse_label_errors():
-    from tympani.pipeline.annotate import parse_label
+    from tympani.pipeline.extract.annotate import parse_label
 
     for tokens in (["x", "tip=1,2"], ["3", "tip=1"], ["3", "nose=1,2"], ["3"]):
         with pytest.raises(InputError):
@@ -609,7 +609,7 @@ def test_batched_measurement_equals_one_at_a_time(tmp_path):
     """Real vision on a rendered video, with checks every 7 frames: measuring 8 frames at a
     time (vision.angles.measure_frames_batch), or as many as fit in 1 MiB (3 frames of
     640x480), gives the table of measuring one at a time."""
-    from tympani.pipeline.bench import render_bench_video
+    from tympani.pipeline.devtools.bench import render_bench_video
 
     video = render_bench_video(tmp_path / "r.mp4", n_frames=30, seed=3)
     one, _ = extract_video(video, ExtractConfig(measure_batch=1, recheck_every=7))
@@ -642,7 +642,7 @@ def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
 
 
 def test_array_width_pools_the_measured_frames():
-    from tympani.pipeline.batch import array_width
+    from tympani.pipeline.extract.batch import array_width
 
     rows = [{"ok": True, "width_ratio": 1.2}] * 9
     rows += [{"ok": False, "width_ratio": 5.0}, {"ok": True, "width_ratio": float("nan")}, {"ok": True}]  # none counts

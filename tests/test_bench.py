@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from tympani.pipeline.bench import _one_cpu, SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
+from tympani.pipeline.devtools.bench import _one_cpu, SECTIONS, BenchConfig, format_bench, loop_video, render_bench_video, run_bench
 from tympani.pipeline.cli import main
 from tympani.vision.frames import open_frames
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tympani.pipeline.bounds import (
+from tympani.pipeline.model.bounds import (
     BoundsConfig,
     bands,
     bands_columns,
@@ -192,7 +192,7 @@ def test_recommended_bound_holds_on_trials_of_the_friction_model():
     is within 95 +- 3 %, and so, on average, is its coverage of a second experiment it never saw
     (one experiment's coverage scatters by about 3 points: 10 trials). Eq. (9)'s upper limit is almost
     never reached, and the recommended band is much narrower."""
-    from tympani.pipeline.synthetic import synthetic_dataset
+    from tympani.pipeline.synthetic.family_a import synthetic_dataset
 
     speeds = (0.5, 3.0, 7.5)
     loto, fresh, eq9_above = [], [], []
@@ -248,7 +248,7 @@ def test_write_bounds_files(tmp_path):
 
 
 def test_figures_close_and_accept_a_simulation_callable(tmp_path):
-    from tympani.pipeline.figures import write_figures
+    from tympani.pipeline.report.figures import write_figures
 
     synced = _synced(np.random.default_rng(7))
     fits, _ = fit_bounds(synced)

@@ -112,7 +112,7 @@ def test_extract_from_manifest(capsys, tmp_path, fake_vision):
 
 
 def test_interrupt_is_exit_130(capsys, tmp_path, monkeypatch, fake_vision):
-    from tympani.pipeline import batch
+    from tympani.pipeline.extract import batch
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
@@ -123,7 +123,7 @@ def test_interrupt_is_exit_130(capsys, tmp_path, monkeypatch, fake_vision):
 
 
 def test_unexpected_error_is_exit_1_one_line_and_debug_shows_traceback(capsys, tmp_path, monkeypatch, fake_vision):
-    from tympani.pipeline import batch
+    from tympani.pipeline.extract import batch
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("oops\nsecond line")

@@ -27,7 +27,7 @@ def test_demo_tells_the_papers_story(tmp_path, capsys):
     assert set(synced.trial) == set(manifest.trial)
     assert manifest.speed_mm_s.nunique() == 3 and manifest.groupby("speed_mm_s").size().eq(5).all()
     # the measured drop of the peak force (measured -22.7 % and -40.4 %; the paper's -24 % and -43 %)
-    from tympani.pipeline.demo import angle_errors, force_drops
+    from tympani.pipeline.devtools.demo import angle_errors, force_drops
 
     drops = force_drops(out / "synced.csv").set_index("speed_mm_s")
     assert -27 < drops.loc[3.0, "change_pct"] < -19 and -47 < drops.loc[7.5, "change_pct"] < -37

@@ -1,7 +1,7 @@
 """The sim-to-real gap diagnosis (issue 4): verdicts on generated data with hidden effects, the
 paper's case, kernels against the library's forms, bad input, the CLI and a small blind evaluation.
 
-Data come from :mod:`pipeline.synthetic` (hidden forms unlike the library's); seeds are fixed and
+Data come from :mod:`pipeline.synthetic.family_a` (hidden forms unlike the library's); seeds are fixed and
 differ from the development seeds used to calibrate the decision thresholds (101, 102).
 """
 
@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from tympani.pipeline.cli import main
-from tympani.pipeline.diagnosis import (
+from tympani.pipeline.diagnosis.core import (
     DATA_NEEDED,
     DiagnosisConfig,
     candidates,
@@ -28,9 +28,9 @@ from tympani.pipeline.diagnosis import (
     prepare,
     smooth_angles,
 )
-from tympani.pipeline.effects import EFFECTS, EffectContext, first_order_lag
-from tympani.pipeline.friction import FrictionParams
-from tympani.pipeline.synthetic import paper_case, synthetic_dataset
+from tympani.pipeline.model.effects import EFFECTS, EffectContext, first_order_lag
+from tympani.pipeline.model.friction import FrictionParams
+from tympani.pipeline.synthetic.family_a import paper_case, synthetic_dataset
 from tympani.vision.errors import InputError
 
 FAST = DiagnosisConfig(bootstrap=300)
@@ -133,7 +133,7 @@ def test_the_papers_protocol_tells_lift_from_lag_one_way_only(seed):
     (-24 % and -43 %) is identified: a sensor lag cannot make that pattern. A sensor lag tuned to
     -43 % at 7.5 mm/s drops only about -16 % at 3 mm/s, and a lubricant film can mimic it: the
     answer is ambiguous, lag first, and a retraction is named to split them."""
-    from tympani.pipeline.synthetic import PAPER_VARIABILITY, peak_force_drop
+    from tympani.pipeline.synthetic.family_a import PAPER_VARIABILITY, peak_force_drop
 
     synced, _ = paper_case(np.random.default_rng(seed), dwell_s=0.0)
     d = diagnose(synced, FAST)
@@ -318,7 +318,7 @@ def test_small_blind_evaluation(family):
     """A small seeded version of ``tympani evaluate-diagnosis`` on each generator family (3 data sets
     per label). The thresholds were set on family A; family B was written independently, with
     other functional forms, and is the honest check."""
-    from tympani.pipeline.diagnosis_eval import EvalConfig, evaluate, format_evaluation, summarise
+    from tympani.pipeline.diagnosis.evaluation import EvalConfig, evaluate, format_evaluation, summarise
 
     config = EvalConfig(family=family, diagnosis=DiagnosisConfig(bootstrap=300))
     results = evaluate(21, 2027, workers=2, config=config)
@@ -361,7 +361,7 @@ def test_splitting_experiments_rank_by_the_fixed_predictions(monkeypatch):
     if its difference were half as large."""
     from types import SimpleNamespace
 
-    from tympani.pipeline import diagnosis_experiments as dx
+    from tympani.pipeline.diagnosis import experiments as dx
 
     table = {  # predicted change (g) of each experiment for each effect; None: not fixed
         "a": {"retraction": 1.0, "viscosity": 0.0, "dwell": 0.0, "baseline": 0.0},

@@ -43,7 +43,7 @@ def _registrations(folder: Path) -> dict[str, dict]:
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory) -> Path:
     """Three short rendered videos (8 frames, 400x300) with a manifest."""
-    from tympani.pipeline.experiment import ExperimentConfig, render_experiment
+    from tympani.pipeline.synthetic.experiment import ExperimentConfig, render_experiment
 
     out = tmp_path_factory.mktemp("dask_exp")
     cfg = ExperimentConfig(speeds_mm_s=(1.5, 3.0, 7.5), trials=1, max_frames=8, width=400, height=300, nuisance=0.2)
@@ -121,8 +121,9 @@ def test_everything_works_without_dask(experiment, tmp_path):
         sys.modules["dask"] = sys.modules["distributed"] = None   # import dask -> ImportError
         import tympani.pipeline as pipeline, tympani.vision as vision
         for pkg in (pipeline, vision):
-            for m in pkgutil.iter_modules(pkg.__path__):
-                importlib.import_module(f"{{pkg.__name__}}.{{m.name}}")
+            for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
+                if not m.name.endswith("__main__"):
+                    importlib.import_module(m.name)
         from tympani.pipeline.cli import COMMANDS, main
         for name in COMMANDS:
             with contextlib.redirect_stdout(io.StringIO()):

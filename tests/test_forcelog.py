@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tympani.pipeline.forcelog import (
+from tympani.pipeline.force.forcelog import (
     G_PER_N,
     ForceLogConfig,
     find_saturation,
@@ -235,7 +235,7 @@ def test_config_is_validated():
 
 
 def test_read_csv_columns_in_small_chunks_keeps_lines_and_exact_stamps(tmp_path):
-    from tympani.pipeline.forcelog import read_csv_columns
+    from tympani.pipeline.force.forcelog import read_csv_columns
 
     e = 1_566_497_791_436_127_452
     lines = ["# a ROS log", "%time,field.Fx,field.Fz"]
@@ -257,7 +257,7 @@ def test_read_csv_columns_in_small_chunks_keeps_lines_and_exact_stamps(tmp_path)
 
 
 def test_read_csv_columns_names_the_line_of_a_bad_cell_in_a_later_chunk(tmp_path):
-    from tympani.pipeline.forcelog import read_csv_columns
+    from tympani.pipeline.force.forcelog import read_csv_columns
 
     rows = [f"{i},{0.5 * i}" for i in range(100)]
     for i, bad, message in ((70, "70,abc", "t.csv:72: f 'abc' is not a number"), (55, "55,-inf", "t.csv:57: f '-inf' is not finite"),
@@ -270,7 +270,7 @@ def test_read_csv_columns_names_the_line_of_a_bad_cell_in_a_later_chunk(tmp_path
 
 
 def test_read_csv_columns_stamps_with_decimals_or_gaps_become_floats(tmp_path):
-    from tympani.pipeline.forcelog import read_csv_columns
+    from tympani.pipeline.force.forcelog import read_csv_columns
 
     text = "t,f\n" + "".join(f"{i},{i}\n" for i in range(20)) + "20.5,1\n21,\n,3\n"
     (tmp_path / "t.csv").write_text(text, encoding="utf-8")
@@ -289,9 +289,9 @@ def test_a_big_log_is_read_in_bounded_memory(tmp_path):
     size; reading the whole text and splitting it into rows held about ten times the file."""
     import tracemalloc
 
-    from tympani.pipeline.labstreams import read_force_stream
-    from tympani.pipeline.logbench import ROS_FORMAT, write_ros_force_csv
-    from tympani.pipeline.logformat import parse_log_format
+    from tympani.pipeline.force.labstreams import read_force_stream
+    from tympani.pipeline.devtools.logbench import ROS_FORMAT, write_ros_force_csv
+    from tympani.pipeline.force.logformat import parse_log_format
 
     path = write_ros_force_csv(tmp_path / "big.csv", 300_000, seed=1)
     size = path.stat().st_size

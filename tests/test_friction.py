@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from tympani.pipeline.friction import (
+from tympani.pipeline.model.friction import (
     G_N,
     ContactGeometry,
     FrictionParams,
@@ -121,7 +121,7 @@ def test_zero_contact_gives_zero_force():
 
 
 def test_forces_are_positive_on_realistic_arcs():
-    """The model's sign conventions give F > 0 (pushing in) on realistic arcs (see pipeline/friction.py)."""
+    """The model's sign conventions give F > 0 (pushing in) on realistic arcs (see pipeline/model/friction.py)."""
     bot, tip = np.meshgrid(np.linspace(1.0, 2.6, 60), np.linspace(1.0, 4.0, 90))
     contact = tip > bot + 1e-9
     laws = [

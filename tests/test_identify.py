@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from tympani.pipeline.cli import main
-from tympani.pipeline.friction import FLAT_NAMES, FrictionParams, LinearPressure, arc_integrals, flat_params, force_from_integrals
-from tympani.pipeline.identify import (
+from tympani.pipeline.model.friction import FLAT_NAMES, FrictionParams, LinearPressure, arc_integrals, flat_params, force_from_integrals
+from tympani.pipeline.model.identify import (
     DEFAULT_FREE,
     FitOptions,
     _build,

@@ -123,6 +123,7 @@ def test_the_checks_see_a_cycle_and_an_import_inside_a_function(tmp_path):
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     src = tmp_path / "x.py"
     src.write_text("import numpy\n\n\ndef f():\n    from .identify import _hidden, read_synced\n", encoding="utf-8")
-    modules = {"tympani.pipeline.identify": ROOT / "pipeline" / "identify.py", "tympani.pipeline.x": src}
-    assert _imports("tympani.pipeline.x", src, modules) == [("tympani.pipeline.identify", "_hidden", 5),
-                                                     ("tympani.pipeline.identify", "read_synced", 5)]
+    modules = {"tympani.pipeline.model.identify": ROOT / "pipeline" / "model" / "identify.py",
+               "tympani.pipeline.model.x": src}
+    assert _imports("tympani.pipeline.model.x", src, modules) == [("tympani.pipeline.model.identify", "_hidden", 5),
+                                                     ("tympani.pipeline.model.identify", "read_synced", 5)]

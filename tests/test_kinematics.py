@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tympani.pipeline.kinematics import KinematicsConfig, fit_insertion, flag_kinematics, insertion_depth
+from tympani.pipeline.extract.kinematics import KinematicsConfig, fit_insertion, flag_kinematics, insertion_depth
 
 
 def _rows(t: np.ndarray, depth: np.ndarray) -> list[dict]:

@@ -17,7 +17,7 @@ import pytest
 
 from lab_logs import LabTrial, depth_at, lab_format, tip_of_depth, write_lab_experiment, write_lab_trial
 from tympani.pipeline.cli import main
-from tympani.pipeline.labstreams import Clock
+from tympani.pipeline.force.labstreams import Clock
 
 
 def _run(capsys, *argv):

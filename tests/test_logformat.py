@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from tympani.pipeline.logformat import AnglesFormat, ForceFormat, parse_log_format, read_log_format
+from tympani.pipeline.force.logformat import AnglesFormat, ForceFormat, parse_log_format, read_log_format
 from tympani.vision.errors import InputError
 
 FULL = """

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tympani.pipeline.motion import NoMotion, find_motion, rest_noise
+from tympani.pipeline.force.motion import NoMotion, find_motion, rest_noise
 
 
 def _stage(rng, *, start=2.7, travel=23.8, speed=1.25, rate=250.0, after=8.0, noise=2e-6, quantum=1e-6,

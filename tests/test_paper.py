@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from tympani.pipeline.cli import main
-from tympani.pipeline.friction import FrictionParams, LinearPressure
-from tympani.pipeline.paper import (
+from tympani.pipeline.model.friction import FrictionParams, LinearPressure
+from tympani.pipeline.model.paper import (
     SCENARIOS,
     SIM_COLUMNS,
     TABLE_II,
@@ -34,7 +34,7 @@ def fit():
 
 
 def test_table_iii_is_the_papers():
-    from tympani.pipeline.paper import TABLE_III
+    from tympani.pipeline.model.paper import TABLE_III
 
     assert TABLE_III["theta_bot"].tolist() == [1.68, 1.41, 1.26, 0.94, 0.77, 0.84]
     assert TABLE_III["theta_con"].tolist() == [1.17, 1.71, 2.23, 3.04, 3.61, 3.63]

@@ -116,7 +116,7 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 def rendered(tmp_path_factory) -> dict:
     """Two short rendered videos (10 frames, 400x300) with a manifest, force logs and truth,
     and their angles tables from an undisturbed run (the reference)."""
-    from tympani.pipeline.experiment import ExperimentConfig, render_experiment
+    from tympani.pipeline.synthetic.experiment import ExperimentConfig, render_experiment
 
     root = tmp_path_factory.mktemp("robust")
     cfg = ExperimentConfig(speeds_mm_s=(3.0, 7.5), trials=1, max_frames=10, width=400, height=300, nuisance=0.2)

@@ -146,7 +146,7 @@ def test_bad_manifest_is_one_line_and_exit_2(tmp_path, capsys):
 
 
 def test_report_renders_without_any_stage_output():
-    from tympani.pipeline.report import render_html
+    from tympani.pipeline.report.page import render_html
 
     page = render_html(dict(run={"stages": {"fit": {"status": "failed", "message": "x.csv: bad"}}}, trials=None,
                             synced=None, sync=None, fit=None, bounds=None, diagnosis=None, figures={}, files=[]))
@@ -154,7 +154,7 @@ def test_report_renders_without_any_stage_output():
 
 
 def test_report_percentages_are_fixed_point():
-    from tympani.pipeline.report import _pct
+    from tympani.pipeline.report.page import _pct
 
     assert [_pct(v) for v in (-5.048e-07, 0.2117, -0.5844, 71.25, float("nan"), None)] == \
         ["0.0", "0.2", "-0.6", "71.2", "–", "–"]

@@ -1,4 +1,4 @@
-"""tympani.pipeline.stats: the statistics the fits share, on small cases worked by hand."""
+"""tympani.pipeline.model.stats: the statistics the fits share, on small cases worked by hand."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tympani.pipeline.stats import (
+from tympani.pipeline.model.stats import (
     MAX_RHO,
     cluster_covariance,
     correlation_from_covariance,

@@ -12,7 +12,7 @@ import pytest
 
 from force_synth import Trial, make_trial, write_experiment, write_trial
 from tympani.pipeline.cli import main
-from tympani.pipeline.sync import (
+from tympani.pipeline.force.sync import (
     SYNC_COLUMNS,
     SyncConfig,
     estimate_offset,

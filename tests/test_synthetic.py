@@ -1,4 +1,4 @@
-"""Synthetic experiments with hidden effects (pipeline.synthetic): signatures, no inverse crime,
+"""Synthetic experiments with hidden effects (pipeline.synthetic.family_a): signatures, no inverse crime,
 the paper case, files that round-trip through ``tympani sync``."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import pytest
 from scipy.optimize import least_squares
 
 from tympani.pipeline.cli import main
-from tympani.pipeline.effects import EFFECTS, EffectContext
-from tympani.pipeline.friction import stribeck
-from tympani.pipeline.paper import paper_params
-from tympani.pipeline.synthetic import (
+from tympani.pipeline.model.effects import EFFECTS, EffectContext
+from tympani.pipeline.model.friction import stribeck
+from tympani.pipeline.model.paper import paper_params
+from tympani.pipeline.synthetic.family_a import (
     HIDDEN_EFFECTS,
     PAPER_DROPS_PCT,
     NoiseConfig,
@@ -73,7 +73,7 @@ def _dwell_ends(df: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
 
 
 def test_generators_cover_the_spec_names():
-    from tympani.pipeline.effects import effect_names
+    from tympani.pipeline.model.effects import effect_names
 
     assert set(HIDDEN_EFFECTS) == set(effect_names())
     for eff in HIDDEN_EFFECTS.values():

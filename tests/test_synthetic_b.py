@@ -19,7 +19,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from tympani.pipeline import synthetic_b as sb
+from tympani.pipeline.synthetic import family_b as sb
 
 SEED = 1
 COLUMNS = ["trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con",

@@ -16,12 +16,12 @@ diagnosis). The names below are the main entry points, one per step of the data 
 Everything else is importable from the subpackages.
 """
 
-from tympani.pipeline.batch import ExtractConfig, extract_batch, extract_video, read_manifest
-from tympani.pipeline.bounds import BoundsConfig, fit_bounds
-from tympani.pipeline.diagnosis import DiagnosisConfig, diagnose
-from tympani.pipeline.identify import fit_synced
+from tympani.pipeline.extract.batch import ExtractConfig, extract_batch, extract_video, read_manifest
+from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds
+from tympani.pipeline.diagnosis.core import DiagnosisConfig, diagnose
+from tympani.pipeline.model.identify import fit_synced
 from tympani.pipeline.run import RunConfig, run_pipeline
-from tympani.pipeline.sync import SyncConfig, sync_manifest, sync_trial
+from tympani.pipeline.force.sync import SyncConfig, sync_manifest, sync_trial
 from tympani.vision.angles import MeasureConfig, measure_frame, prepare_measurement
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 from tympani.vision.registration import RegistrationConfig, register

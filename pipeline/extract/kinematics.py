@@ -1,0 +1,224 @@
+"""The insertion's kinematics as a check on a video's measured frames.
+
+The robot pushes the array in at a constant speed, so the measured insertion depth (the length
+of array past the entry, mm) of a video's frames lies on one line in time, flat before the robot
+starts and after it stops: ``depth(t) = clip(d0 + v t, lo, hi)``. A frame far from that line
+was misread (a bubble ahead of the tip taken for more array, a tip lost in a shadow), and so is a
+*run* of such frames, which a spike filter keeps when the misreading lasts. :func:`fit_insertion`
+fits the line robustly (a consensus line through pairs of frames, then a Cauchy-loss fit of the
+clipped line); :func:`flag_kinematics` marks the frames off it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from tympani.pipeline.model.stats import mad_sd
+
+__all__ = ["KinematicsConfig", "InsertionFit", "fit_insertion", "insertion_depth", "flag_kinematics"]
+
+
+@dataclass(frozen=True)
+class KinematicsConfig:
+    """Settings of the kinematics check.
+
+    Parameters
+    ----------
+    tol_mm : float
+        Least distance (mm) from the fitted insertion that marks a frame; the check uses the
+        larger of this and ``spread`` robust standard deviations of the frames on the line.
+    spread : float
+        Robust standard deviations (dimensionless) of the depth about the line a frame may lie
+        off it.
+    min_frames : int
+        Fewest measured frames with a depth for the check to run.
+    min_share : float
+        Least share (dimensionless) of the measured frames the fitted line must hold within the
+        tolerance. A video whose frames agree less has at least half of them misread and no way
+        to tell which: all its measured frames are marked.
+    pairs : int
+        Pairs of frames tried as the consensus line.
+    """
+
+    tol_mm: float = 0.5
+    spread: float = 5.0
+    min_frames: int = 8
+    min_share: float = 0.5
+    pairs: int = 400
+
+
+@dataclass(frozen=True)
+class InsertionFit:
+    """A video's insertion, ``depth(t) = clip(d0 + speed * t, lo, hi)``.
+
+    Parameters
+    ----------
+    d0_mm : float
+        Depth (mm) the moving phase extrapolates to at t = 0.
+    speed_mm_s : float
+        Insertion speed (mm/s, at least 0).
+    lo_mm, hi_mm : float
+        Depth (mm) before the robot starts and after it stops.
+    sigma_mm : float
+        Robust standard deviation (mm) of the frames on the line about it.
+    tol_mm : float
+        Distance (mm) from the line beyond which a frame is off it.
+    share : float
+        Share (dimensionless) of the frames within ``tol_mm``.
+    """
+
+    d0_mm: float
+    speed_mm_s: float
+    lo_mm: float
+    hi_mm: float
+    sigma_mm: float
+    tol_mm: float
+    share: float
+
+
+def insertion_depth(fit: InsertionFit, time_s: np.ndarray) -> np.ndarray:
+    """Depth (mm) of the fitted insertion at ``time_s`` (s)."""
+    return np.clip(fit.d0_mm + fit.speed_mm_s * np.asarray(time_s, dtype=float), fit.lo_mm, fit.hi_mm)
+
+
+def _consensus_line(t: np.ndarray, d: np.ndarray, tol: float, pairs: int) -> tuple[float, float]:
+    """The line ``d0 + v t`` (v >= 0) through two frames that holds most frames within ``tol``
+    (mm), once clipped to the depths it passes; drawn from a fixed seed so that a video always
+    gives the same line."""
+    rng = np.random.default_rng(0)
+    n = len(t)
+    i, j = rng.integers(0, n, size=(2, pairs))
+    keep = t[j] > t[i]
+    i, j = i[keep], j[keep]
+    v = np.maximum((d[j] - d[i]) / (t[j] - t[i]), 0.0)
+    d0 = d[i] - v * t[i]
+    lo, hi = np.minimum(d[i], d[j]), np.maximum(d[i], d[j])
+    # a candidate is clipped to a plateau at either end where the frames are flat there
+    line = d0[:, None] + v[:, None] * t[None, :]
+    lo_all = np.minimum(lo, np.quantile(d, 0.05))[:, None]
+    hi_all = np.maximum(hi, np.quantile(d, 0.95))[:, None]
+    inliers = (np.abs(np.clip(line, lo_all, hi_all) - d[None, :]) <= tol).sum(axis=1)
+    best = int(np.argmax(inliers)) if len(inliers) else -1
+    if best < 0:
+        return float(np.median(d)), 0.0
+    return float(d0[best]), float(v[best])
+
+
+def fit_insertion(time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfig = KinematicsConfig()) -> InsertionFit | None:
+    """Fit a constant-speed insertion to measured depths, robust to runs of misread frames.
+
+    Parameters
+    ----------
+    time_s : ndarray
+        Frame times (s).
+    depth_mm : ndarray
+        Measured insertion depth (mm) of the same frames (finite).
+    cfg : KinematicsConfig
+        Settings.
+
+    Returns
+    -------
+    InsertionFit or None
+        None with fewer than ``cfg.min_frames`` frames.
+    """
+    t, d = np.asarray(time_s, dtype=float), np.asarray(depth_mm, dtype=float)
+    if len(t) < cfg.min_frames or np.ptp(t) <= 0:
+        return None
+    d0, v = _consensus_line(t, d, cfg.tol_mm, cfg.pairs)
+    on = np.abs(np.clip(d0 + v * t, d.min(), d.max()) - d) <= cfg.tol_mm
+    lo0, hi0 = float(np.min(d[on], initial=d.min())), float(np.max(d[on], initial=d.max()))
+    scale = max(cfg.tol_mm / 3.0, 1e-3)
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        return np.clip(p[0] + p[1] * t, p[2], p[3]) - d
+
+    def jacobian(p: np.ndarray) -> np.ndarray:
+        line = p[0] + p[1] * t
+        below, above = line < p[2], line > p[3]
+        ramp = ~(below | above)
+        return np.column_stack([ramp, ramp * t, below, above]).astype(float)
+
+    p0 = np.array([d0, v, lo0, max(hi0, lo0 + 1e-6)])
+    res = least_squares(residual, p0, jac=jacobian, loss="cauchy", f_scale=scale, xtol=1e-6, ftol=1e-6,
+                        bounds=([-np.inf, 0.0, -np.inf, -np.inf], [np.inf, np.inf, np.inf, np.inf]))
+    p = res.x if res.success else p0
+    lo, hi = float(min(p[2], p[3])), float(max(p[2], p[3]))
+    r = np.clip(p[0] + p[1] * t, lo, hi) - d
+    near = np.abs(r) <= cfg.tol_mm
+    sigma = mad_sd(r[near], centre=False) if near.any() else math.inf
+    tol = max(cfg.tol_mm, cfg.spread * sigma)
+    share = float(np.mean(np.abs(r) <= tol))
+    return InsertionFit(float(p[0]), float(p[1]), lo, hi, sigma, tol, share)
+
+
+def _runs(index: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of consecutive integers in sorted ``index``, as (first, last) pairs."""
+    if len(index) == 0:
+        return []
+    cut = np.flatnonzero(np.diff(index) > 1)
+    starts = np.concatenate([[0], cut + 1])
+    ends = np.concatenate([cut, [len(index) - 1]])
+    return [(int(index[a]), int(index[b])) for a, b in zip(starts, ends)]
+
+
+def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()) -> tuple[list[dict], str]:
+    """Mark the measured frames whose depth is off the video's constant-speed insertion, in place.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``time_s`` s, ``ok``, ``depth_mm`` mm,
+        ``theta_tip``, ``theta_bot``, ``theta_con`` rad, ``reason``); changed in place: marked
+        rows get ``ok`` False, NaN angles and the reason.
+    cfg : KinematicsConfig
+        Settings.
+
+    Returns
+    -------
+    runs : list of dict
+        One per run of consecutive measured frames marked: ``first`` and ``last`` frame,
+        ``frames`` (how many), ``off_mm`` (the largest distance, mm, signed: + deeper than the
+        insertion).
+    note : str
+        What the check found, or why it did not run ("" when it ran and marked nothing).
+    """
+    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"])
+          if rows[i]["ok"] and np.isfinite(float(rows[i].get("depth_mm", math.nan) or math.nan))]
+    if len(ok) < cfg.min_frames:
+        return [], ""
+    t = np.array([float(rows[i]["time_s"]) for i in ok])
+    d = np.array([float(rows[i]["depth_mm"]) for i in ok])
+    fit = fit_insertion(t, d, cfg)
+    if fit is None:
+        return [], ""
+    r = d - insertion_depth(fit, t)
+    if fit.share < cfg.min_share:  # no insertion to check against: every frame is in doubt
+        off = np.arange(len(ok))
+        why = (f"the measured depths follow no constant-speed insertion (at most {100 * fit.share:.0f} % "
+               f"of the {len(ok)} measured frames lie on one)")
+    else:
+        off = np.flatnonzero(np.abs(r) > fit.tol_mm)
+        why = ""
+    runs = []
+    for a, b in _runs(off):
+        seg = r[a:b + 1]
+        worst = float(seg[np.argmax(np.abs(seg))])
+        runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
+                         off_mm=round(worst, 3)))
+        for j in range(a, b + 1):
+            rows[ok[j]].update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
+                               reason=("kinematics: " + why if why else
+                                       f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed "
+                                       f"insertion ({fit.speed_mm_s:.3g} mm/s)"))
+    note = ""
+    if why:
+        note = f"{len(off)} frame(s) marked not ok: {why}"
+    elif runs:
+        spans = ", ".join(f"{u['first']}–{u['last']}" if u["last"] > u["first"] else f"{u['first']}" for u in runs)
+        note = (f"{len(off)} frame(s) marked not ok off the constant-speed insertion ({fit.speed_mm_s:.3g} mm/s, "
+                f"tolerance {fit.tol_mm:.2f} mm): frames {spans}")
+    return runs, note

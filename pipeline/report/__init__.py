@@ -1,0 +1,1 @@
+"""The report of a run (one HTML page) and the force-side figures."""
