@@ -1,0 +1,226 @@
+"""Settings and results of registration: :class:`RegistrationConfig`, the automatic scale
+range (:func:`search_range`), :class:`Registration` and :class:`RegistrationError`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from tympani.vision.geometry import CameraPose
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Search ranges and tolerances of :func:`register`.
+
+    Parameters
+    ----------
+    px_per_mm_range : tuple of float, or None
+        Smallest and largest scale (px/mm) searched. None (default): from 10 px/mm to 80 px/mm
+        per 640 px of the frame's larger side (80 at 640×480 and below, 240 at 1920×1080),
+        the scales at which enough of the walls can be in view (:func:`search_range`).
+    coarse_px_per_mm : float
+        Working resolution (px/mm of the phantom) of the global search.
+    coarse_scale_step : float
+        Relative step between the scales of the global search (0.1 = 10 %).
+    coarse_rotations : int
+        Number of rotations of the global search (per mirror), evenly spaced over 2π.
+    coarse_peaks_per_scale : int
+        Centres proposed by the rotation-invariant detector at each scale.
+    n_candidates : int
+        Proposals of the global search that are refined to half resolution.
+    n_fine : int
+        Best of those that are refined at full resolution.
+    edge_sigma_px : float or None
+        Gaussian smoothing (px) before Canny; ``None`` chooses it from the image's noise
+        (:func:`vision.edges.auto_sigma`).
+    min_segment_px : int
+        Edge segments shorter than this (px) are dropped as specks.
+    refine_sigma_px : float
+        Kernel (px, full resolution) of the first, polarity-blind full-resolution pass.
+    final_sigma_px : float
+        Kernel (px) of the last, polarity-aware pass; small enough that the walls of
+        neighbouring turns (0.24 mm apart) stay out of each other's window.
+    max_line_half_width_px : float
+        Largest half width (px) of a wall drawn as a line (its two edges lie this far from the
+        wall on either side).
+    model_spacing_px : float
+        Spacing (px) of the wall points used in refinement and verification.
+    inlier_tol_px : float
+        A wall point is an inlier when an edge of matching orientation and polarity lies
+        within this distance (px, along its normal) of where the fit expects it.
+    min_inlier_fraction : float
+        Least fraction of the visible wall points that must be inliers.
+    min_visible_fraction : float
+        Least fraction of the model's wall length that must be inside the frame.
+    max_residual_px : float
+        Largest accepted residual (px, :attr:`WallFit.residual_px`).
+    combine : {"median", "mean", "first"}
+        How several frames are merged before edge detection.
+    """
+
+    px_per_mm_range: tuple[float, float] | None = None
+    coarse_px_per_mm: float = 2.0
+    coarse_scale_step: float = 0.10
+    coarse_rotations: int = 128
+    coarse_peaks_per_scale: int = 3
+    n_candidates: int = 4
+    n_fine: int = 2
+    edge_sigma_px: float | None = None
+    min_segment_px: int = 8
+    refine_sigma_px: float = 2.0
+    final_sigma_px: float = 1.0
+    max_line_half_width_px: float = 4.0
+    model_spacing_px: float = 1.5
+    inlier_tol_px: float = 2.5
+    min_inlier_fraction: float = 0.7
+    min_visible_fraction: float = 0.3
+    max_residual_px: float = 3.0
+    combine: str = "median"
+
+    def __post_init__(self) -> None:
+        if self.px_per_mm_range is not None:
+            lo, hi = self.px_per_mm_range
+            if not 0 < lo <= hi:
+                raise ValueError(f"px_per_mm_range must be 0 < lo <= hi, got {self.px_per_mm_range}")
+        if self.combine not in ("median", "mean", "first"):
+            raise ValueError(f"combine must be 'median', 'mean' or 'first', not {self.combine!r}")
+        if self.edge_sigma_px is not None and self.edge_sigma_px <= 0:
+            raise ValueError("edge_sigma_px must be positive or None")
+
+
+#: The automatic scale range (see :attr:`RegistrationConfig.px_per_mm_range`): px/mm, and the
+#: largest scale per 640 px of the frame's larger side.
+AUTO_MIN_PX_PER_MM, AUTO_MAX_PX_PER_MM_PER_640 = 10.0, 80.0
+
+
+def search_range(cfg: RegistrationConfig, width: int, height: int) -> tuple[float, float]:
+    """The scales (px/mm) :func:`register` searches in a ``width`` × ``height`` (px) frame:
+    ``cfg.px_per_mm_range``, or when it is None, 10 px/mm up to 80 px/mm per 640 px of the
+    larger side (never less than 80). How much of the frame the phantom fills depends on its
+    scale against the frame's size in px, so the largest scale at which enough of its walls
+    are in view grows with the frame."""
+    if cfg.px_per_mm_range is not None:
+        return cfg.px_per_mm_range
+    return AUTO_MIN_PX_PER_MM, AUTO_MAX_PX_PER_MM_PER_640 * max(1.0, max(width, height) / 640.0)
+
+
+@dataclass(frozen=True)
+class Registration:
+    """A phantom-to-image similarity and how well the walls fit it.
+
+    Parameters
+    ----------
+    pose : CameraPose
+        Phantom (mm) to image (px) similarity.
+    residual_px : float
+        Median distance (px) from the visible model walls to their image edges (taking the
+        edges' polarity and the line half width into account), the statistic :func:`check`
+        recomputes on later frames; a few tenths of a pixel for a good registration.
+    inlier_fraction : float
+        Fraction of visible wall points with an edge of matching orientation within
+        ``inlier_tol_px``.
+    visible_fraction : float
+        Fraction of the model's wall length inside the frame.
+    matched_length_mm : float
+        Wall length (mm) supported by inliers.
+    line_half_width_px : float
+        Estimated half width (px) of the wall lines (> 0 dark lines, < 0 bright lines,
+        about 0 for region boundaries).
+    edge_sigma_px : float
+        Canny smoothing (px) used; :func:`check` uses the same.
+    image_size : tuple of int
+        ``(width, height)`` (px) of the frames registered.
+    walls_doubled : bool
+        Whether every wall showed twice, the second copy shifted by one image vector
+        (``parallax_px``): the top and bottom edges of a thick plate's walls seen at an angle
+        (see docs/how-it-works.md). ``pose`` is then that of the *first copy*, the one
+        with the stronger edges (the second copy is a fainter replica), and the residual,
+        inlier and check statistics count an edge of either copy. The copies are told apart
+        where they are resolved: about 1 px for wall lines (the union of two overlapping
+        lines is fitted as such) and 2.5 px for region boundaries, whose two steps merge into
+        one edge below that; a doubling too small to resolve is not reported (and moves
+        the pose by at most about a third of the parallax).
+    parallax_px : tuple of float
+        Image displacement ``(dx, dy)`` (px, x right, y down) of the second wall copy from the
+        first; ``(0, 0)`` unless ``walls_doubled``. Where the copies overlap (wall lines
+        closer than their width) it is measured from the union's outer edges, which can read
+        up to about a third short.
+    second_copy_contrast : float
+        Edge strength of the second copy relative to the first (0–1, the ratio of median
+        gradient magnitudes at edges of the two copies); NaN when the walls are single or
+        where the copies were never resolved.
+    """
+
+    pose: CameraPose
+    residual_px: float
+    inlier_fraction: float = float("nan")
+    visible_fraction: float = float("nan")
+    matched_length_mm: float = float("nan")
+    line_half_width_px: float = float("nan")
+    edge_sigma_px: float = 1.0
+    image_size: tuple[int, int] = (0, 0)
+    walls_doubled: bool = False
+    parallax_px: tuple[float, float] = (0.0, 0.0)
+    second_copy_contrast: float = float("nan")
+    _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
+
+    @property
+    def parallax_mm(self) -> float:
+        """Length (mm, in the phantom's plane) of :attr:`parallax_px`; 0 for single walls."""
+        return float(math.hypot(*self.parallax_px)) / float(self.pose.px_per_mm)
+
+    def to_dict(self) -> dict:
+        """The registration JSON's keys (docs/file-formats.md) plus the fit statistics and the doubled walls (JSON-ready):
+        ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
+        ``wall_parallax_y_px`` and ``second_copy_contrast`` (NaN when unknown)."""
+        p = self.pose
+        return {
+            "centre_x_px": float(p.centre_x_px),
+            "centre_y_px": float(p.centre_y_px),
+            "rotation_rad": float(p.rotation_rad),
+            "px_per_mm": float(p.px_per_mm),
+            "mirrored": bool(p.mirrored),
+            "residual_px": float(self.residual_px),
+            "inlier_fraction": float(self.inlier_fraction),
+            "visible_fraction": float(self.visible_fraction),
+            "matched_length_mm": float(self.matched_length_mm),
+            "line_half_width_px": float(self.line_half_width_px),
+            "edge_sigma_px": float(self.edge_sigma_px),
+            "image_width_px": int(self.image_size[0]),
+            "image_height_px": int(self.image_size[1]),
+            "walls_doubled": bool(self.walls_doubled),
+            "wall_parallax_mm": float(self.parallax_mm),
+            "wall_parallax_x_px": float(self.parallax_px[0]),
+            "wall_parallax_y_px": float(self.parallax_px[1]),
+            "second_copy_contrast": float(self.second_copy_contrast),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Registration":
+        """Inverse of :meth:`to_dict`; only the six pose keys are required."""
+        pose = CameraPose(
+            float(d["centre_x_px"]),
+            float(d["centre_y_px"]),
+            float(d["rotation_rad"]),
+            float(d["px_per_mm"]),
+            bool(d["mirrored"]),
+        )
+        nan = float("nan")
+        return cls(
+            pose=pose,
+            residual_px=float(d["residual_px"]),
+            inlier_fraction=float(d.get("inlier_fraction", nan)),
+            visible_fraction=float(d.get("visible_fraction", nan)),
+            matched_length_mm=float(d.get("matched_length_mm", nan)),
+            line_half_width_px=float(d.get("line_half_width_px", nan)),
+            edge_sigma_px=float(d.get("edge_sigma_px", 1.0)),
+            image_size=(int(d.get("image_width_px", 0)), int(d.get("image_height_px", 0))),
+            walls_doubled=bool(d.get("walls_doubled", False)),
+            parallax_px=(float(d.get("wall_parallax_x_px", 0.0)), float(d.get("wall_parallax_y_px", 0.0))),
+            second_copy_contrast=float(d.get("second_copy_contrast", nan)),
+        )
+
+
+class RegistrationError(Exception):
+    """No phantom was found in the frames; the message says why."""

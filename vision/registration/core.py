@@ -1,0 +1,215 @@
+"""The public entry points: :func:`register` (search, refinement, doubled walls and
+verification of a merged frame) and :func:`check` (the residual of a registration on a new
+frame)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from tympani.vision.edges import edges_from_gradients
+from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, Phantom
+from tympani.vision.registration.coarse import Proposal, coarse_search, distinct
+from tympani.vision.registration.config import (
+    Registration,
+    RegistrationConfig,
+    RegistrationError,
+    search_range,
+)
+from tympani.vision.registration.doubled import doubled_walls
+from tympani.vision.registration.frames import (
+    Edges,
+    combine_frames,
+    frame_list,
+    gradients_for_canny,
+    prepare_edges,
+)
+from tympani.vision.registration.model import WallModel, wall_model
+from tympani.vision.registration.refine import refine_coarse, refine_fine
+from tympani.vision.registration.valley import valley_pose, valley_scan
+from tympani.vision.registration.verify import WallFit, check_walls, edge_layers, wall_fit, wall_fit_from
+
+
+# A candidate whose inliers cover this fraction of the whole wall model is taken without
+# refining the others (nothing else could explain clearly more of the walls).
+_EXCELLENT = 0.85
+
+
+def _best_pose(
+    edges: Edges,
+    layers: np.ndarray,
+    model: WallModel,
+    cfg: RegistrationConfig,
+    scale_range: tuple[float, float],
+    b_per_rad: float,
+) -> tuple[CameraPose, float, WallFit] | None:
+    """Global search over ``scale_range`` (px/mm), refinement of the best proposals, and the
+    best-supported result.
+
+    Each proposal refined at full resolution is also refined from the best turn along the
+    spiral's self-similarity valley (:func:`valley_scan`), and the better supported of the
+    two kept.
+
+    ``layers`` is :func:`edge_layers` of the edges and ``b_per_rad`` the exponential
+    branch's ``b`` (1/rad). Returns the pose, the wall lines' half width (px) and the fit, or
+    None.
+    """
+    proposals = coarse_search(edges, model, cfg, scale_range)
+    lo, hi = scale_range
+
+    def fit(pose: CameraPose, spacing_px: float, half_width: float | None) -> WallFit:
+        sub = model.subsample(spacing_px / pose.px_per_mm)
+        tol = cfg.inlier_tol_px + (cfg.max_line_half_width_px if half_width is None else 0.0)
+        return wall_fit_from(pose, layers, sub, half_width, tol)
+
+    excellent = _EXCELLENT * model.length_mm
+    remaining = list(proposals)
+    coarse: list[Proposal] = []
+    refined: list[Proposal] = []  # those of ``coarse`` already refined at full resolution
+    best = None
+    while True:
+        # proposals to half resolution (until one explains nearly all the walls) ...
+        while remaining:
+            pose = refine_coarse(remaining.pop(0).pose, edges, model, cfg)
+            if 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
+                matched = fit(pose, 3.0, None).matched_length_mm
+                coarse.append(Proposal(matched, pose))
+                if matched >= excellent:
+                    break
+        # ... and the best supported few not yet refined to full resolution
+        ranked = distinct(sorted(coarse, key=lambda p: -p.score), len(coarse))
+        for prop in [p for p in ranked if not any(p is q for q in refined)][: cfg.n_fine]:
+            refined.append(prop)
+            pose, half_width = refine_fine(prop.pose, edges, model, cfg)
+            result = fit(pose, cfg.model_spacing_px, half_width)
+            delta = valley_scan(pose, edges.pyramid, model, b_per_rad)
+            if delta != 0.0:
+                turned, turned_hw = refine_fine(valley_pose(pose, delta, b_per_rad), edges, model, cfg)
+                turned_fit = fit(turned, cfg.model_spacing_px, turned_hw)
+                if turned_fit.matched_length_mm > result.matched_length_mm:
+                    pose, half_width, result = turned, turned_hw, turned_fit
+            if best is None or result.matched_length_mm > best[2].matched_length_mm:
+                best = (pose, half_width, result)
+            if result.matched_length_mm >= excellent:
+                return best
+        # Not confirmed at full resolution (the half-resolution fit is lenient: an array deep
+        # in the channel, its edges taken for walls, can pass it in a wrong pose): go on
+        # with the proposals left, if any.
+        if not remaining:
+            return best
+
+
+def register(
+    gray_frames: list[np.ndarray] | np.ndarray,
+    phantom: Phantom = DEFAULT_PHANTOM,
+    cfg: RegistrationConfig = RegistrationConfig(),
+) -> Registration:
+    """Find the phantom in frames of a static view, with no initial guess.
+
+    Parameters
+    ----------
+    gray_frames : list of ndarray, or one ndarray
+        Frames (grey or BGR; uint8, uint16 or float) of one camera view, e.g. the first
+        frames of a video; merged per :attr:`RegistrationConfig.combine`.
+    phantom : Phantom
+        Phantom geometry.
+    cfg : RegistrationConfig
+        Search ranges and tolerances.
+
+    Returns
+    -------
+    Registration
+
+    Raises
+    ------
+    RegistrationError
+        When no pose explains the edges well enough: no phantom, too little of it in view,
+        or too few edges. The message says which test failed.
+    """
+    frames = frame_list(gray_frames)
+    gray = combine_frames(frames, cfg.combine)
+    h, w = gray.shape
+    scale_range = search_range(cfg, w, h)
+    scales = f"{scale_range[0]:g}-{scale_range[1]:g} px/mm"  # named when nothing is found
+    gx, gy, sigma, magnitude = gradients_for_canny(gray, cfg.edge_sigma_px)
+    levels = max(0, int(math.floor(math.log2(max(scale_range[1], 1.0) / 3.0))))
+    em = edges_from_gradients(gx, gy, sigma_px=sigma, min_length_px=cfg.min_segment_px, magnitude=magnitude)
+    edges = prepare_edges(em, levels)
+    if len(edges.points) < 50:
+        raise RegistrationError(
+            f"no phantom found: only {len(edges.points)} edge pixels in the {w}x{h} frame (blank or featureless)"
+        )
+    model = wall_model(phantom, spacing_mm=0.02)
+    layers = edge_layers(edges.edge_map)
+    b_per_rad = math.degrees(phantom.b_per_deg)  # b of the exponential branch, 1/rad
+    best = _best_pose(edges, layers, model, cfg, scale_range, b_per_rad)
+    if best is None:
+        raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
+                                "plausible scale")
+    pose, half_width, fit = best
+    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad)
+    shift, contrast = (0.0, 0.0), float("nan")
+    if doubled is not None:
+        copies, contrast = doubled
+        pose, half_width, shift = copies.pose, copies.half_width, copies.shift
+        sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+        fit = wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, np.asarray(shift))
+    reasons = []
+    if fit.visible_fraction < cfg.min_visible_fraction:
+        reasons.append(f"only {fit.visible_fraction:.0%} of its walls would be in view")
+    if fit.inlier_fraction < cfg.min_inlier_fraction:
+        reasons.append(
+            f"only {fit.inlier_fraction:.0%} of its visible walls lie on edges of matching orientation "
+            f"(need {cfg.min_inlier_fraction:.0%})"
+        )
+    if fit.residual_px > cfg.max_residual_px:
+        reasons.append(f"median wall-to-edge distance {fit.residual_px:.1f} px (max {cfg.max_residual_px:.1f})")
+    if reasons:
+        raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))
+    registration = Registration(
+        pose=pose,
+        residual_px=fit.residual_px,
+        inlier_fraction=fit.inlier_fraction,
+        visible_fraction=fit.visible_fraction,
+        matched_length_mm=fit.matched_length_mm,
+        line_half_width_px=half_width,
+        edge_sigma_px=sigma,
+        image_size=(w, h),
+        walls_doubled=doubled is not None,
+        parallax_px=shift,
+        second_copy_contrast=contrast,
+    )
+    # check()'s wall points, from the model at hand (what wall_fit would build on first use)
+    key, walls = (phantom, pose), check_walls(pose, model)
+    registration._check_cache[key] = walls
+    # the residual as check() will measure it on later frames: on one frame as given
+    result = replace(registration, residual_px=wall_fit(frames[0], registration, phantom, cfg).residual_px)
+    result._check_cache[key] = walls  # replace() starts with an empty cache
+    return result
+
+
+def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAULT_PHANTOM) -> float:
+    """Residual (px) of an existing registration on a new frame, in a few milliseconds.
+
+    Canny (with the registration's smoothing) runs only on the phantom's bounding box; the
+    result is :attr:`WallFit.residual_px`, the statistic stored as
+    :attr:`Registration.residual_px`. A bumped camera shows as a residual well above the
+    registration's own, since the walls no longer lie on their edges.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (h, w) or (h, w, 3)
+        The new frame (grey or BGR; any dtype :func:`vision.edges.as_float_gray` accepts).
+    registration : Registration
+        The registration to test. The wall points are cached on it on first use.
+    phantom : Phantom
+        Phantom geometry.
+
+    Returns
+    -------
+    float
+        Residual (px); ``inf`` when no wall is in view.
+    """
+    return wall_fit(gray, registration, phantom).residual_px

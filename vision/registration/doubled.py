@@ -1,0 +1,608 @@
+"""Doubled walls: every wall seen twice, the second copy shifted by one image vector (a
+thick plate's top and bottom edges seen at an angle). The copies are started from the shift
+surface of a single-copy fit or from how the lines' width varies with their direction, fitted
+together, and kept only when the second copy's edges are found."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tympani.vision.geometry import CameraPose
+from tympani.vision.registration.config import RegistrationConfig
+from tympani.vision.registration.frames import Edges
+from tympani.vision.registration.model import WallModel
+from tympani.vision.registration.poses import image_points, similarity_jacobian, updated
+from tympani.vision.registration.refine import FIELD_BLUR_VAR, profiles, refine_signed, solve_step, visible
+from tympani.vision.registration.valley import valley_pose, valley_scan
+from tympani.vision.registration.verify import COS_ALIGNED, nearest_pixels
+
+
+# Two edges of the same polarity closer than this (px) show as one: a doubled region
+# boundary's two steps merge, and the merged edge is taken as the first (stronger) copy's.
+_MERGE_PX = 2.5
+# Two wall lines further apart than their width plus this gap (px) show their inner edges too.
+_LINE_GAP_PX = 1.0
+# A second copy's edge closer than this (px) to the first copy's is not counted as support.
+_RESOLVED_PX = 1.0
+# Doubled walls are reported when the second copy's resolved edges are expected at no fewer
+# than this fraction of the visible wall points ...
+_MIN_SECOND_SHOWN = 0.10
+# ... and at least this fraction of them lies on an edge (single walls give 0.08–0.2 to a
+# spurious shift, doubled ones 0.35–0.95).
+_MIN_SECOND_MATCHED = 0.30
+# Largest parallax (mm) looked for.
+_MAX_PARALLAX_MM = 0.55
+# Least parallax (mm) reported: a fit with its copies closer is taken for one (thicker) wall
+# (render_c's and our renderer's parallax starts at 0.10 mm; single walls with a shadow or a
+# soft region step beside their lines give 0.04–0.08 mm).
+_MIN_PARALLAX_MM = 0.08
+# :func:`_copy_starts` looks for a second copy off the first's edges only when the masked
+# shift surface reaches this fraction of the unmasked one's maximum (single walls 0.07–0.46,
+# median 0.18; doubled walls whose second copy is found that way 0.21–0.86).
+_MIN_MASKED_RATIO = 0.18
+# A line's width must vary by at least this much (px) with its direction, the variation
+# explaining at least this fraction of the width's variance, for :func:`_copy_starts` to
+# try two overlapping copies.
+_MIN_WIDENING_PX = 1.5
+_MIN_WIDENING_EXPLAINED = 0.4
+# Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
+_SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
+
+
+@dataclass(frozen=True)
+class _Copies:
+    """Doubled walls: the first copy's pose, the wall lines' half width (px, as
+    :attr:`Registration.line_half_width_px`) and the second copy's image shift (px)."""
+
+    pose: CameraPose
+    half_width: float
+    shift: tuple[float, float]
+
+    def swapped(self) -> "_Copies":
+        """The same walls with the copies' roles exchanged."""
+        dx, dy = self.shift
+        return _Copies(_translated(self.pose, (dx, dy)), self.half_width, (-dx, -dy))
+
+
+@dataclass(frozen=True)
+class _Support:
+    """Edges found where a two-copy fit expects them (counts over wall points and classes).
+
+    ``matched2`` and ``shown2`` count only the second copy's edges at least
+    :data:`_RESOLVED_PX` from the first copy's.
+    """
+
+    matched1: int
+    shown1: int
+    matched2: int
+    shown2: int
+    n_points: int
+
+    @property
+    def score(self) -> float:
+        """Matched edges less a quarter of those expected (about the share a random shift
+        matches), so that a shift onto stray edges does not pay."""
+        return self.matched1 + self.matched2 - 0.25 * (self.shown1 + self.shown2)
+
+    @property
+    def first_rate(self) -> float:
+        """Fraction of the first copy's shown edges found."""
+        return self.matched1 / max(self.shown1, 1)
+
+    @property
+    def second_is_real(self) -> bool:
+        """Whether the second copy is expected at enough points and found at enough of them."""
+        return self.shown2 >= _MIN_SECOND_SHOWN * self.n_points and self.matched2 >= _MIN_SECOND_MATCHED * self.shown2
+
+
+def _translated(pose: CameraPose, shift: tuple[float, float] | np.ndarray) -> CameraPose:
+    """``pose`` moved by ``shift`` (px, image x and y)."""
+    return CameraPose(
+        float(pose.centre_x_px + shift[0]), float(pose.centre_y_px + shift[1]), pose.rotation_rad, pose.px_per_mm,
+        pose.mirrored,
+    )
+
+
+def _copy_offsets(
+    delta: np.ndarray, half_width: float, sign: float, lines: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where one polarity class's edge of each copy is expected, and whether it shows.
+
+    Parameters
+    ----------
+    delta : ndarray, shape (n,)
+        Offset (px) of the second copy along each wall normal.
+    half_width : float
+        Half width (px) of the wall lines (< 0: bright lines).
+    sign : float
+        The class: +1 for edges whose gradient points out of the channel, -1 into it.
+    lines : bool
+        Whether the walls are lines (an edge of each class) or region boundaries (one).
+
+    Returns
+    -------
+    e1, e2 : ndarray, shape (n,)
+        Expected offsets (px, along the normals) of the first and the second copy's edge.
+    shown1, shown2 : ndarray of bool, shape (n,)
+        Whether each shows. Two lines that overlap (closer than their width plus
+        :data:`_LINE_GAP_PX`) form one thicker line, which shows only the outer of the two
+        edges of a class. A region boundary's second step shows only beyond
+        :data:`_MERGE_PX`; nearer, the two merge into one edge, nearer the stronger copy.
+    """
+    e1 = np.full(delta.shape, sign * half_width)
+    e2 = e1 + delta
+    if not lines:
+        return e1, e2, np.ones(delta.shape, bool), np.abs(delta) > _MERGE_PX
+    apart = np.abs(delta) > 2.0 * abs(half_width) + _LINE_GAP_PX
+    # this class's edge lies on the side sign * sign(half_width) of its line
+    second_outer = sign * math.copysign(1.0, half_width) * delta > 0
+    return e1, e2, apart | ~second_outer, apart | second_outer
+
+
+def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_px: float = 4.0) -> tuple[float, ...]:
+    """The edge polarity classes the walls show near ``pose``: ``(1.0, -1.0)`` for lines
+    (an edge on each side), ``(1.0,)`` or ``(-1.0,)`` for region boundaries (gradient out of
+    or into the channel).
+
+    A class counts when its mean strongest response along the normals (within ``reach_px``,
+    px) is at least 35 % of the other class's.
+    """
+    pts, nrm = image_points(pose, model)
+    vis = visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    prof = profiles(sfield, pts, nrm, np.arange(-reach_px, reach_px + 1e-9, 0.5))
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    out_of, into = float(proj.max(axis=1).mean()), float((-proj).max(axis=1).mean())
+    if min(out_of, into) >= 0.35 * max(out_of, into):
+        return (1.0, -1.0)
+    return (1.0,) if out_of > into else (-1.0,)
+
+
+def _copy_edges(
+    delta: np.ndarray, half_width: float, classes: tuple[float, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every shown edge of doubled walls (:func:`_copy_offsets`), one row each.
+
+    Parameters
+    ----------
+    delta : ndarray, shape (n,)
+        Offset (px) of the second copy along each wall normal.
+    half_width : float
+        Half width (px) of the wall lines.
+    classes : tuple of float
+        Polarity classes shown (:func:`_wall_classes`).
+
+    Returns
+    -------
+    point : ndarray of int
+        The wall point of each edge.
+    sign : ndarray
+        Its class (+1 or -1).
+    second : ndarray of bool
+        Whether it is the second copy's.
+    expected : ndarray
+        Its expected offset (px) along the normal.
+    other : ndarray
+        The other copy's edge of the class (px along the normal), NaN where that one does
+        not show.
+    """
+    lines = len(classes) == 2
+    parts = []
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines)
+        for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
+            rows = np.flatnonzero(shown)
+            parts.append((rows, np.full(len(rows), sign), np.full(len(rows), second), e[rows],
+                          np.where(other_shown[rows], other[rows], np.nan)))
+    return tuple(np.concatenate([part[k] for part in parts]) for k in range(5))  # type: ignore[return-value]
+
+
+def _refine_copies(
+    copies: _Copies,
+    sfield: np.ndarray,
+    model: WallModel,
+    classes: tuple[float, ...],
+    *,
+    sigma: float,
+    iterations: int,
+    max_half_width: float,
+    max_shift_px: float,
+    tol_px: float = 0.05,
+) -> _Copies:
+    """Polarity-aware refinement (as :func:`refine_signed`) of doubled walls: pose, line half
+    width and the second copy's shift.
+
+    Each class's edge of each copy is expected where :func:`_copy_offsets` puts it; a copy's
+    edge that shows takes the samples within ``3 sigma`` (px) of it that are nearer to it than
+    to the other copy's edge of the class (where that shows), and their Gaussian-weighted
+    mean offset is one row of a weighted Gauss–Newton step (the second copy's rows also move
+    the shift). Region boundaries (one class) keep their half width.
+    """
+    gain = 1.0 + FIELD_BLUR_VAR / sigma**2
+    u = np.arange(-3.0 * sigma, 3.0 * sigma + 1e-9, 0.5)
+    kernel = np.exp(-0.5 * (u / sigma) ** 2)
+    lines = len(classes) == 2
+    pose, half_width, shift = copies.pose, copies.half_width, np.asarray(copies.shift, dtype=float)
+    scale0 = pose.px_per_mm
+    for _ in range(iterations):
+        pts, nrm = image_points(pose, model)
+        vis = visible(pts, sfield.shape)
+        if np.count_nonzero(vis) < 20:
+            break
+        pts, nrm = pts[vis], nrm[vis]
+        base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes)
+        n = nrm[point]
+        prof = profiles(sfield, pts[point] + expected[:, None] * n, n, u)
+        a = prof[..., 0] * n[:, 0:1]
+        a += prof[..., 1] * n[:, 1:2]
+        a *= sign[:, None]
+        np.maximum(a, 0.0, out=a)
+        a *= kernel
+        # samples nearer the other copy's edge of the class (where it shows) are the other's
+        with np.errstate(invalid="ignore"):
+            a[np.abs(expected[:, None] + u - other[:, None]) < np.abs(u)] = 0.0
+        wsum = a.sum(axis=1)
+        ok = wsum > 1e-3
+        if np.count_nonzero(ok) < 20:
+            break
+        jac = np.zeros((np.count_nonzero(ok), 7))
+        jac[:, :4] = base[point[ok]]
+        jac[:, 4] = sign[ok] if lines else 0.0
+        jac[:, 5:7] = n[ok] * second[ok, None]
+        step = solve_step(jac, gain * (a @ u)[ok] / wsum[ok], wsum[ok], max_px=(max_half_width + 3.0 * sigma) * gain)
+        if step is None:
+            break
+        pose = updated(pose, step[:4], rho)
+        half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
+        shift = shift + step[5:7]
+        length = float(np.hypot(*shift))
+        if length > max_shift_px:
+            shift *= max_shift_px / length
+        if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
+            break
+        if float(np.abs(step).sum()) < tol_px:
+            break
+    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])))
+
+
+def _class_edge_distances(
+    layers: np.ndarray, pts: np.ndarray, nrm: np.ndarray, offsets: np.ndarray, sign: float, reach: float = 1.5
+) -> np.ndarray:
+    """Distance (px) along each normal from ``offsets`` to the nearest Canny edge pixel of
+    polarity class ``sign`` (gradient within 30° of ``sign`` times the normal); ``inf``
+    beyond ``reach`` (px)."""
+    t = np.arange(-reach, reach + 1e-9, 0.5, dtype=np.float32)
+    h, w = layers.shape[:2]
+    start = pts + offsets[:, None] * nrm
+    px, py = start[:, 0:1].astype(np.float32), start[:, 1:2].astype(np.float32)
+    nx, ny = nrm[:, 0:1].astype(np.float32), nrm[:, 1:2].astype(np.float32)
+    ix, iy = nearest_pixels(px, nx, t, w), nearest_pixels(py, ny, t, h)
+    off = (ix - px) * nx + (iy - py) * ny  # from the expected edge
+    prof = np.take(layers.reshape(-1, 2), iy * w + ix, axis=0)
+    proj = sign * (prof[..., 0] * nx + prof[..., 1] * ny)
+    dist = np.abs(off)
+    dist[(proj < COS_ALIGNED) | (np.abs(off - t) > 1.0)] = np.inf
+    return dist.min(axis=1)
+
+
+def _copy_support(
+    copies: _Copies, layers: np.ndarray, model: WallModel, classes: tuple[float, ...], tol_px: float = 1.0
+) -> _Support:
+    """:class:`_Support` of ``copies``: their expected edges with a Canny edge of the same
+    class within ``tol_px`` (px)."""
+    pts, nrm = image_points(copies.pose, model)
+    vis = visible(pts, layers.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    delta = nrm @ np.asarray(copies.shift, dtype=float)
+    resolved = np.abs(delta) >= _RESOLVED_PX
+    counts = np.zeros(4, int)
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+        found1 = _class_edge_distances(layers, pts, nrm, e1, sign) <= tol_px
+        found2 = _class_edge_distances(layers, pts, nrm, e2, sign) <= tol_px
+        shown2 &= resolved
+        counts += [np.count_nonzero(found1 & shown1), np.count_nonzero(shown1),
+                   np.count_nonzero(found2 & shown2), np.count_nonzero(shown2)]
+    return _Support(*(int(c) for c in counts), n_points=len(pts))
+
+
+def _copy_contrast(
+    copies: _Copies, magnitude: np.ndarray, model: WallModel, classes: tuple[float, ...], min_edges: int = 10
+) -> float:
+    """Edge strength of the second copy relative to the first: ``exp`` of the sum over
+    classes of the difference between the median log gradient magnitudes (``magnitude``,
+    grey levels/px, the largest within ±0.5 px) at the two copies' shown edges, each at
+    least :data:`_RESOLVED_PX` from the other copy's. NaN when no class has ``min_edges`` of
+    each.
+
+    Lines that overlap compare one copy's outer edge on one side with the other copy's on
+    the other side: taken over the whole spiral, each class is seen on both sides.
+    """
+    pts, nrm = image_points(copies.pose, model)
+    vis = visible(pts, magnitude.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    delta = nrm @ np.asarray(copies.shift, dtype=float)
+    resolved = np.abs(delta) >= _RESOLVED_PX
+    t = np.array([-0.5, 0.0, 0.5])
+    log_ratio, used = 0.0, False
+    for sign in classes:
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+        medians = []
+        for e, shown in ((e1, shown1 & resolved), (e2, shown2 & resolved)):
+            if np.count_nonzero(shown) < min_edges:
+                break
+            mag = profiles(magnitude, pts[shown] + e[shown, None] * nrm[shown], nrm[shown], t).max(axis=1)
+            medians.append(float(np.median(np.log(np.maximum(mag, 1e-3)))))
+        if len(medians) == 2:
+            log_ratio += medians[1] - medians[0]
+            used = True
+    return float(math.exp(log_ratio)) if used else float("nan")
+
+
+def _bin_sums(rows: np.ndarray, bins: np.ndarray, n_bins: int) -> np.ndarray:
+    """Sum of the ``rows`` (shape (n, m)) that fall in each of ``n_bins`` bins (``bins``,
+    shape (n,)); shape (n_bins, m)."""
+    order = np.argsort(bins, kind="stable")
+    counts = np.bincount(bins, minlength=n_bins)
+    out = np.zeros((n_bins, rows.shape[1]))
+    filled = counts > 0
+    if filled.any():
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])[filled]
+        out[filled] = np.add.reduceat(rows[order], starts, axis=0)
+    return out
+
+
+def _shift_surface(
+    pose: CameraPose,
+    sfield: np.ndarray,
+    model: WallModel,
+    radius_px: float,
+    classes: tuple[float, ...],
+    mask_half_width: float | None = None,
+    n_bins: int = 48,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How well the walls at ``pose`` moved by each shift ``v`` (px, ``|v_x|, |v_y| <=
+    radius_px``) lie on edges: the polarity-aware evidence of ``classes`` (at ``±h``)
+    summed over the walls, for the best line half width ``h`` of
+    :data:`_SURFACE_HALF_WIDTHS` (lines) or ``h = 0`` (region boundaries, one class).
+
+    The signed field is sampled once along each wall normal and the samples summed over
+    wall points of about the same normal direction (``n_bins`` bins): a shift ``v`` then
+    moves every edge of a bin by the same ``n·v``, one lookup per bin. With
+    ``mask_half_width`` (px), the edges at ``±mask_half_width`` (within 1.5 px) are left
+    out: the surface then shows where else the walls have edges, e.g. their second copy.
+
+    Returns
+    -------
+    surface : ndarray, shape (m, m)
+        Evidence (arbitrary units), row index along y, column along x.
+    half_width : ndarray, shape (m, m)
+        The half width (px) that gave it.
+    grid : ndarray, shape (m,)
+        The shifts (px) of the rows and columns, in steps of 1 px (more above 12 px of
+        radius, so that the grid has at most 25 steps a side).
+    """
+    pts, nrm = image_points(pose, model)
+    vis = visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    half_widths = _SURFACE_HALF_WIDTHS if len(classes) == 2 else (0.0,)
+    h_max = max(abs(h) for h in half_widths)
+    reach = radius_px * math.sqrt(2.0) + h_max + 1.0
+    t = np.arange(-reach, reach + 1e-9, 0.5)
+    prof = profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    out_of = np.maximum(proj, 0.0) if 1.0 in classes else np.zeros_like(proj)
+    into = np.maximum(-proj, 0.0) if -1.0 in classes else np.zeros_like(proj)
+    if mask_half_width is not None:
+        out_of[:, np.abs(t - mask_half_width) <= 1.5] = 0.0
+        into[:, np.abs(t + mask_half_width) <= 1.5] = 0.0
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
+    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
+    sums = np.stack([_bin_sums(out_of, bins, n_bins), _bin_sums(into, bins, n_bins)])
+    centre = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
+    step = max(1.0, radius_px / 12.0)
+    grid = np.arange(-math.floor(radius_px / step), math.floor(radius_px / step) + 1) * step
+    vx, vy = np.meshgrid(grid, grid)
+    along = np.cos(centre)[:, None] * vx.ravel()[None, :] + np.sin(centre)[:, None] * vy.ravel()[None, :]
+    best = np.full(vx.size, -np.inf)
+    best_h = np.zeros(vx.size)
+    rows = np.arange(n_bins)[:, None]
+    for h in half_widths:
+        total = np.zeros(vx.size)
+        for table, offset in ((sums[0], h), (sums[1], -h)):
+            idx = np.clip((along + offset + reach) * 2.0, 0.0, len(t) - 1.001)
+            i0 = idx.astype(np.intp)
+            frac = idx - i0
+            total += (table[rows, i0] * (1.0 - frac) + table[rows, i0 + 1] * frac).sum(axis=0)
+        better = total > best
+        best[better], best_h[better] = total[better], h
+    return best.reshape(vx.shape), best_h.reshape(vx.shape), grid
+
+
+def _surface_peaks(
+    surface: np.ndarray, half_width: np.ndarray, grid: np.ndarray, n: int, min_shift_px: float = 0.0
+) -> list[tuple[np.ndarray, float, float]]:
+    """Up to ``n`` local maxima of a :func:`_shift_surface`, best first, at least
+    ``min_shift_px`` (px) from zero shift: (shift (px, x and y), value relative to the
+    surface's maximum, half width (px))."""
+    top = float(surface.max())
+    if not top > 0:
+        return []
+    values = surface.astype(np.float32)  # compared in the dilation's precision
+    rows, cols = np.nonzero(values >= cv2.dilate(values, np.ones((3, 3), np.uint8)))
+    out = []
+    for r, c in sorted(zip(rows.tolist(), cols.tolist()), key=lambda rc: -surface[rc]):
+        v = np.array([grid[c], grid[r]])
+        if math.hypot(*v) >= min_shift_px:
+            out.append((v, float(surface[r, c]) / top, float(half_width[r, c])))
+            if len(out) == n:
+                break
+    return out
+
+
+def _line_widening(
+    pose: CameraPose, half_width: float, sfield: np.ndarray, model: WallModel, n_bins: int = 24, reach_px: float = 6.0
+) -> tuple[np.ndarray, float]:
+    """Second copy of wall lines too close to show apart, from how the lines' width varies
+    with their direction.
+
+    Two copies ``v`` (px) apart that overlap form one line widened by ``|n·v|`` where its
+    normal is ``n``, the widening showing on the outer side of each polarity class's edge; a
+    single line has the same width in every direction. The signed field is sampled along
+    each wall normal, summed over wall points of about the same normal direction
+    (``n_bins`` bins over 360°), and in each bin each class's edge is placed at its strongest
+    evidence from 3 px inside to ``reach_px`` (px) outside its expected place (``±half_width``).
+    The bins' widths ``w`` are fitted by ``w = c + A |cos(theta - phi)|`` (least squares
+    weighted by the weaker class's evidence, ``phi`` in 5° steps).
+
+    Returns
+    -------
+    shift : ndarray, shape (2,)
+        ``A (cos phi, sin phi)`` (px): the second copy's shift, up to its sign.
+    explained : float
+        Fraction of the weighted variance of the widths the ``|cos|`` term explains (0–1).
+    """
+    pts, nrm = image_points(pose, model)
+    vis = visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    if len(pts) < 4 * n_bins:
+        return np.zeros(2), 0.0
+    h = half_width
+    t = np.arange(-abs(h) - reach_px - 1.0, abs(h) + reach_px + 1.0 + 1e-9, 0.5)
+    prof = profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
+    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
+    ends = []
+    for sign, evidence in ((1.0, np.maximum(proj, 0.0)), (-1.0, np.maximum(-proj, 0.0))):
+        sums = _bin_sums(evidence, bins, n_bins)
+        # outward along t for this class's edge: the side sign * sign(h) of the line
+        out = sign * (1.0 if h >= 0 else -1.0)
+        u = out * (t - sign * h)
+        window = (u >= -3.0) & (u <= reach_px)
+        best = np.argmax(np.where(window[None, :], sums, -np.inf), axis=1)
+        ends.append((u[best], sums[np.arange(n_bins), best]))
+    widths = ends[0][0] + ends[1][0]
+    weights = np.minimum(ends[0][1], ends[1][1])
+    theta = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
+    wsum = float(weights.sum())
+    if not wsum > 0:
+        return np.zeros(2), 0.0
+    mean = float(weights @ widths) / wsum
+    total = float(weights @ (widths - mean) ** 2)
+    best_fit = (0.0, 0.0, total)
+    for phi in np.radians(np.arange(0.0, 180.0, 5.0)):
+        x = np.abs(np.cos(theta - phi))
+        xm = float(weights @ x) / wsum
+        sxx = float(weights @ (x - xm) ** 2)
+        if sxx <= 0:
+            continue
+        a = float(weights @ ((x - xm) * (widths - mean))) / sxx
+        resid = total - a * a * sxx
+        if a > 0 and resid < best_fit[2]:
+            best_fit = (a, phi, resid)
+    a, phi, resid = best_fit
+    explained = 1.0 - resid / total if total > 0 else 0.0
+    return np.array([a * math.cos(phi), a * math.sin(phi)]), float(explained)
+
+
+def _copy_starts(
+    pose: CameraPose,
+    half_width: float,
+    sfield: np.ndarray,
+    model: WallModel,
+    classes: tuple[float, ...],
+    cfg: RegistrationConfig,
+) -> list[_Copies]:
+    """Starting points for :func:`_refine_copies` from a single-copy fit ``pose`` (px), which
+    may lie on either copy or between them.
+
+    Copies further apart than their edges' width: the strongest peak of
+    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
+    the surface's best peak (two best, for region boundaries) proposes the other copy, unless
+    the masked surface's maximum is below :data:`_MIN_MASKED_RATIO` of the unmasked one (no
+    edges off the first copy's). Lines closer than that (one thicker line): when the line's
+    width varies with its direction (:func:`_line_widening`: at least
+    :data:`_MIN_WIDENING_PX` and :data:`_MIN_WIDENING_EXPLAINED` of the variance), the two
+    copies ``∓ shift / 2`` either side of ``pose``. (Region boundaries that close merge into
+    one edge, which shows no second copy to fit.)
+    """
+    lines = len(classes) == 2
+    radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
+    sparse = model.subsample(2.0 / pose.px_per_mm)  # enough wall to place the walls to a pixel
+    surface, widths, grid = _shift_surface(pose, sfield, sparse, radius, classes)
+    starts = []
+    peaks = _surface_peaks(surface, widths, grid, 1)
+    if peaks:
+        v, _, h = peaks[0]
+        one, one_hw = pose, half_width
+        if math.hypot(*v) >= 1.0:
+            one, one_hw = refine_signed(
+                _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
+            )
+        masked, masked_hw, _ = _shift_surface(one, sfield, sparse, radius, classes, mask_half_width=one_hw)
+        if float(masked.max()) >= _MIN_MASKED_RATIO * float(surface.max()):
+            for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 1 if lines else 2, min_shift_px=2.0):
+                starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
+    if lines:
+        shift, explained = _line_widening(pose, half_width, sfield, sparse)
+        if math.hypot(*shift) >= _MIN_WIDENING_PX and explained >= _MIN_WIDENING_EXPLAINED:
+            starts.append(_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))))
+    return starts
+
+
+def doubled_walls(
+    edges: Edges,
+    layers: np.ndarray,
+    pose: CameraPose,
+    half_width: float,
+    model: WallModel,
+    cfg: RegistrationConfig,
+    b_per_rad: float,
+) -> tuple[_Copies, float] | None:
+    """Doubled walls near a single-copy fit, or None when the walls are single.
+
+    Every start of :func:`_copy_starts` is refined on walls 4 px apart. Of those whose
+    second copy is real (:attr:`_Support.second_is_real`) and whose first copy lies on edges
+    nearly as often as the single copy did (:attr:`_Support.first_rate`, at least 85 % of
+    it: a shift onto another turn's walls can pass the first test), the best supported
+    (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
+    the spiral's valley when that fits better (:func:`valley_scan`), and its copies named
+    so that the first is the one with the stronger edges; copies closer than
+    :data:`_MIN_PARALLAX_MM` are taken for single walls. Returns the copies and the second
+    copy's relative contrast (:func:`_copy_contrast`).
+    """
+    coarse = model.subsample(4.0 / pose.px_per_mm)
+    classes = _wall_classes(pose, edges.signed, coarse)
+    fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+    limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=_MAX_PARALLAX_MM * pose.px_per_mm)
+    single = _copy_support(_Copies(pose, half_width, (0.0, 0.0)), layers, coarse, classes)
+    best: tuple[float, _Copies] | None = None
+    for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg):
+        copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
+        support = _copy_support(copies, layers, coarse, classes)
+        plausible = support.second_is_real and support.first_rate >= 0.85 * single.first_rate
+        if plausible and (best is None or support.score > best[0]):
+            best = (support.score, copies)
+    if best is None:
+        return None
+    copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
+    delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
+    if delta != 0.0:
+        turned = _Copies(valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift)
+        turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
+        if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
+            copies = turned
+    support = _copy_support(copies, layers, fine, classes)
+    least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
+    if not (support.second_is_real and math.hypot(*copies.shift) >= least):
+        return None
+    contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
+    if contrast > 1.0:
+        copies, contrast = copies.swapped(), 1.0 / contrast
+    return copies, contrast
