@@ -16,8 +16,22 @@ import cv2
 import numpy as np
 import pytest
 
-from tympani.vision import angles as angles_mod
-from tympani.vision.angles import FrameMeasurement, measure_frame, measure_frames_batch, prepare_measurement
+import angles_reference as ref
+from tympani.vision.angles import FrameMeasurement, measure_frame, measure_frames_batch, prepare_measurement, survey
+from tympani.vision.angles.arrays import erode
+from tympani.vision.angles.ragged import (
+    Ragged,
+    distance_from_tip_ragged,
+    erode_ragged,
+    extrapolate_ragged,
+    fill_rows,
+    interp_ragged,
+    interp_rows,
+    near_ragged,
+    running_median_ragged,
+    smooth_ragged,
+    tip_crossing_ragged,
+)
 from tympani.vision.rendering import Scene, pose_at_depth, random_appearance, random_nuisance, random_pose
 
 W, H = 640, 480
@@ -129,18 +143,18 @@ def _random_frames(rng: np.random.Generator, n_frames: int = 7) -> list[int]:
 def test_ragged_helpers_equal_per_frame(seed: int) -> None:
     rng = np.random.default_rng(seed)
     lengths = _random_frames(rng)
-    rg = angles_mod._Ragged.of(lengths)
+    rg = Ragged.of(lengths)
     mask = rng.random(rg.row.size) < rng.uniform(0.2, 0.9)
     values = rng.normal(size=rg.row.size)
     for reach in (1, 2):
-        eroded = angles_mod._erode_ragged(mask, rg, reach)
-        expected = np.concatenate([angles_mod._erode(m, reach) for m in rg.split(mask)])
+        eroded = erode_ragged(mask, rg, reach)
+        expected = np.concatenate([erode(m, reach) for m in rg.split(mask)])
         np.testing.assert_array_equal(eroded, expected)
     for size in (1, 3, 7):
-        near = angles_mod._near_ragged(mask, rg, size)
-        np.testing.assert_array_equal(near, np.concatenate([angles_mod._near(m, size) for m in rg.split(mask)]))
-        med = angles_mod._running_median_ragged(values, rg, size)
-        np.testing.assert_array_equal(med, np.concatenate([angles_mod._running_median(v, size) for v in rg.split(values)]))
+        near = near_ragged(mask, rg, size)
+        np.testing.assert_array_equal(near, np.concatenate([ref.near(m, size) for m in rg.split(mask)]))
+        med = running_median_ragged(values, rg, size)
+        np.testing.assert_array_equal(med, np.concatenate([ref.running_median(v, size) for v in rg.split(values)]))
     padded = rg.pad(values, np.nan)  # each frame left-aligned in its row, the fill after it
     for b, v in enumerate(rg.split(values)):
         np.testing.assert_array_equal(padded[b, : len(v)], v)
@@ -151,36 +165,36 @@ def test_ragged_helpers_equal_per_frame(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_ragged_smoothing_equals_per_frame(seed: int) -> None:
-    """_smooth_ragged (running sums across frames, window clipped to each frame, gaps filled)
-    against _smooth_valid frame by frame, sparse frames included (their gaps are filled)."""
+    """smooth_ragged (running sums across frames, window clipped to each frame, gaps filled)
+    against smooth_valid frame by frame, sparse frames included (their gaps are filled)."""
     rng = np.random.default_rng(seed)
-    rg = angles_mod._Ragged.of(_random_frames(rng, 9))
+    rg = Ragged.of(_random_frames(rng, 9))
     density = rng.uniform(0.05, 1.0, len(rg.n))[rg.row]  # some frames nearly empty: long gaps
     valid = (rng.random(rg.row.size) < density) | (rg.local == rng.integers(0, rg.n)[rg.row])
     for k in (1, 2):
         values = rng.normal(size=(k, rg.row.size)).cumsum(axis=1) + 100.0  # far from 0, as offsets in mm are not
         values[:, ~valid] = np.nan  # ignored
         for size in (1, 5, 9, 13):
-            fit, slope = angles_mod._smooth_ragged(values, valid, rg, size)
+            fit, slope = smooth_ragged(values, valid, rg, size)
             for b, (v, ok) in enumerate(zip(np.split(values, rg.start[1:], axis=1), rg.split(valid))):
-                f_b, s_b = angles_mod._smooth_valid(v, ok, size)
+                f_b, s_b = ref.smooth_valid(v, ok, size)
                 cut = slice(rg.start[b], rg.start[b] + rg.n[b])
                 np.testing.assert_allclose(fit[:, cut], f_b, rtol=0, atol=1e-9)
                 np.testing.assert_allclose(slope[:, cut], s_b, rtol=0, atol=1e-9)
-    with pytest.raises(ValueError):  # a frame with no valid station, as np.interp in _smooth_valid
-        angles_mod._smooth_ragged(np.zeros((1, rg.row.size)), valid & (rg.row != 0), rg, 3)
+    with pytest.raises(ValueError):  # a frame with no valid station, as np.interp in smooth_valid
+        smooth_ragged(np.zeros((1, rg.row.size)), valid & (rg.row != 0), rg, 3)
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
     rng = np.random.default_rng(seed)
-    rg = angles_mod._Ragged.of(_random_frames(rng))
+    rg = Ragged.of(_random_frames(rng))
     cover = np.clip(rng.normal(0.5, 0.4, rg.row.size), 0.0, 1.0)
     level = rng.uniform(0.3, 0.7, len(rg.n))
     fallback = rng.uniform(0.0, 5.0, len(rg.n))
-    got = angles_mod._tip_crossing_ragged(cover, level, fallback, rg)
+    got = tip_crossing_ragged(cover, level, fallback, rg)
     for b, c in enumerate(rg.split(cover)):
-        assert abs(got[b] - angles_mod._tip_crossing(c, float(level[b]), float(fallback[b]))) <= 1e-12
+        assert abs(got[b] - ref.tip_crossing(c, float(level[b]), float(fallback[b]))) <= 1e-12
     span = float(rng.uniform(2.0, 15.0))
     stations = rg.local.astype(float)
     values = rng.normal(size=rg.row.size).cumsum()
@@ -188,15 +202,15 @@ def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
     last = rg.last(measured)
     sel = measured & (rg.local >= (last - span)[rg.row])
     with np.errstate(divide="ignore", invalid="ignore"):
-        got = angles_mod._extrapolate_ragged(stations, values, sel, span, rg)
+        got = extrapolate_ragged(stations, values, sel, span, rg)
     for b, (st, v, ms) in enumerate(zip(rg.split(stations), rg.split(values), rg.split(measured))):
-        expected = angles_mod._extrapolate(st[ms].astype(int), v[ms], float(rg.n[b] - 1), span)
+        expected = ref.extrapolate(st[ms].astype(int), v[ms], float(rg.n[b] - 1), span)
         assert abs(got[b] - expected) <= 1e-9 * max(1.0, abs(expected))
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
-    """_fill_rows (integer and half positions), _interp_rows and _array_runs against np.interp
+    """fill_rows (integer and half positions), interp_rows and _array_runs against np.interp
     and _array_run row by row."""
     rng = np.random.default_rng(seed)
     n_rows, n = 6, int(rng.integers(2, 30))
@@ -209,20 +223,59 @@ def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
             if known[b].any():
                 for r in range(2):
                     expected[b, r, ~known[b]] = np.interp(x[~known[b]], x[known[b]], fit[b, r, known[b]])
-        angles_mod._fill_rows(fit, known, ~known & known.any(axis=1)[:, None], x)
+        fill_rows(fit, known, ~known & known.any(axis=1)[:, None], x)
         np.testing.assert_array_equal(fit, expected)
     xp = 3 * np.arange(8) + 1.5
     fp = rng.normal(size=(n_rows, 8))
     x = np.concatenate([np.arange(30, dtype=float), xp, rng.uniform(-5.0, 30.0, 20)])  # sample positions too
-    np.testing.assert_array_equal(angles_mod._interp_rows(x, xp, fp), [np.interp(x, xp, f) for f in fp])
+    np.testing.assert_array_equal(interp_rows(x, xp, fp), [np.interp(x, xp, f) for f in fp])
     row = rng.integers(0, n_rows, len(x))
-    np.testing.assert_array_equal(angles_mod._interp_ragged(x, row, xp, fp),
+    np.testing.assert_array_equal(interp_ragged(x, row, xp, fp),
                                   [np.interp(q, xp, fp[r]) for q, r in zip(x, row)])
     dark = rng.random((n_rows, n)) < rng.uniform(0.2, 0.9)
     probe = np.flatnonzero(rng.random(n) < 0.3)
     probe = probe if len(probe) else np.array([0])
     gap = float(rng.uniform(0.0, 4.0))
-    np.testing.assert_array_equal(angles_mod._array_runs(dark, probe, gap), [_array_run(d, probe, gap) for d in dark])
+    np.testing.assert_array_equal(survey._array_runs(dark, probe, gap), [_array_run(d, probe, gap) for d in dark])
+
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_survey_levels_equal_per_frame(seed: int) -> None:
+    """_fluid_levels and _array_ratios against fluid_level and array_ratio row by row: frames all
+    in view (float32, as the survey gives them), partly in view, with scattered stations out of
+    view, and out of view."""
+    rng = np.random.default_rng(seed)
+    n_rows, n = 6, int(rng.integers(20, 200))
+    lit = rng.uniform(80.0, 200.0) * (1.0 + 0.3 * np.sin(np.linspace(0.0, 3.0, n)))
+    brightest = (lit * rng.uniform(0.5, 1.05, (n_rows, n))).astype(np.float32)
+    in_view = np.ones((n_rows, n), dtype=bool)
+    in_view[1, : n // 3] = False
+    in_view[2] = rng.random(n) < 0.7
+    in_view[3] = False
+    block, reach = int(rng.integers(1, 12)), int(rng.integers(0, 4))
+    fluid = survey._fluid_levels(brightest, in_view, block, 25.0, reach, 0.85)
+    for b in range(n_rows):
+        np.testing.assert_array_equal(fluid[b], ref.fluid_level(brightest[b], in_view[b], block, 25.0, reach, 0.85))
+    darkest = (brightest * rng.uniform(0.3, 1.0, (n_rows, n))).astype(np.float32)
+    steepest = (brightest - darkest) * rng.uniform(0.0, 1.0, (n_rows, n)).astype(np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = survey._array_ratios(darkest, brightest, steepest, fluid, in_view, 3)
+        expected = [ref.array_ratio(darkest[b], brightest[b], steepest[b], fluid[b], in_view[b], 3) for b in range(n_rows)]
+    np.testing.assert_array_equal(rho, expected)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_ragged_distance_from_tip_equals_per_frame(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    rg = Ragged.of(_random_frames(rng))
+    line = rng.normal(size=(rg.row.size, 2)).cumsum(axis=0)
+    tip_mm = rng.normal(size=(len(rg.n), 2))
+    tip_f = rng.uniform(-1.0, 41.0, len(rg.n))
+    got = distance_from_tip_ragged(line, tip_mm, tip_f, rg)
+    for b, points in enumerate(rg.split(line)):
+        expected = ref.distance_from_tip(points, tip_mm[b], np.arange(len(points)), float(tip_f[b]))
+        np.testing.assert_array_equal(rg.split(got)[b], expected)
 
 
 def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:

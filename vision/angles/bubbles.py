@@ -1,0 +1,165 @@
+"""Air bubbles at or ahead of the array's tip: where they end the array's dark run.
+
+A bubble's rim is as dark as the array, so the survey's dark run goes on past the tip into it;
+its interior is a compact bright region enclosed on all sides (:func:`with_compact` finds the
+frames that may have one, :func:`bubble_end` where the array ends before it).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tympani.vision.angles.config import MeasureConfig
+
+
+def _dark_runs(dark: np.ndarray) -> np.ndarray:
+    """Per row of ``dark`` (rows, n), the length of the run of True ending at each entry (0 where
+    False)."""
+    at = np.arange(dark.shape[1])[None, :]
+    last_false = np.maximum.accumulate(np.where(dark, -1, at), axis=1)
+    return np.where(dark, at - last_false, 0)
+
+
+def _compact(x: np.ndarray, y: np.ndarray, w: np.ndarray, h: np.ndarray, area: np.ndarray, m: int,
+             n: np.ndarray | int, step_mm: float, offset_mm: np.ndarray | float, cfg: MeasureConfig) -> np.ndarray:
+    """Which bright components could be a bubble's interior: enclosed in their window (``m``
+    offsets × ``n`` stations; not touching its border), of a bubble's size, fill and aspect.
+
+    Parameters
+    ----------
+    x, y, w, h, area : ndarray of int
+        Bounding boxes (station, offset) and pixel counts of the components, in their window.
+    m : int
+        Offsets of the windows.
+    n : ndarray of int or int
+        Stations of each component's window.
+    step_mm : float
+        Station spacing (mm).
+    offset_mm : ndarray or float
+        Offset spacing (mm) of each component's window.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    ndarray of bool
+    """
+    len_mm, wid_mm = w * step_mm, h * offset_mm
+    return ((x > 0) & (x + w < n) & (y > 0) & (y + h < m) & (area * (step_mm * offset_mm) >= cfg.bubble_min_mm2)
+            & (np.maximum(len_mm, wid_mm) <= 2.0 * cfg.bubble_max_mm)
+            & (area >= cfg.bubble_fill[0] * w * h) & (area <= cfg.bubble_fill[1] * w * h)
+            & (len_mm <= cfg.bubble_aspect * wid_mm) & (wid_mm <= cfg.bubble_aspect * len_mm))
+
+
+def with_compact(brights: list[np.ndarray], step_mm: float, offset_mm: np.ndarray, cfg: MeasureConfig) -> np.ndarray:
+    """Which of the windows ``brights`` (each offsets × stations, bool) hold a :func:`_compact`
+    component: all windows labelled in one call, side by side with an empty column between.
+
+    Parameters
+    ----------
+    brights : list of ndarray of bool
+        Each frame's bright pixels (same number of rows).
+    step_mm : float
+        Station spacing (mm).
+    offset_mm : ndarray
+        Offset spacing (mm) of each window.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    ndarray of bool, shape (len(brights),)
+    """
+    out = np.zeros(len(brights), bool)
+    if not brights:
+        return out
+    m = brights[0].shape[0]
+    widths = np.array([b.shape[1] for b in brights])
+    starts = np.concatenate([[0], np.cumsum(widths + 1)[:-1]])
+    canvas = np.zeros((m, int(starts[-1] + widths[-1])), np.uint8)
+    for s0, b in zip(starts.tolist(), brights):
+        canvas[:, s0: s0 + b.shape[1]] = b
+    _, _, stats, _ = cv2.connectedComponentsWithStats(canvas, connectivity=4)
+    x, y, w, h, area = (stats[1:, k] for k in range(5))
+    f = np.searchsorted(starts, x, side="right") - 1
+    compact = _compact(x - starts[f], y, w, h, area, m, widths[f], step_mm, offset_mm[f], cfg)
+    out[f[compact]] = True
+    return out
+
+
+def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
+                step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
+    """Where the array ends when an air bubble sits at or ahead of its tip.
+
+    A bubble shows as a bright interior inside a closed dark rim. Along the channel its rim reads
+    as more array (the rim is as dark as the array, and its interior no longer than a band) and
+    across the channel the darkest offset jumps to the rim, so the dark run goes on past the tip.
+    Its interior, unlike the fluid beyond the tip, is a bright region enclosed on all sides: a
+    compact, round component of the bright pixels of the channel's interior. A metal band can be
+    enclosed too (by the array's shaded edges) but is a rectangle no wider than the array, with
+    the array's body beyond it; a bubble's interior is round and either wider than the array or
+    followed, along the array's path, by no more than a thin rim. The array ends before the
+    first such component on its path, less the rim's thickness (that of the rim beyond the
+    interior): at the last dark station before it.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (offsets, stations)
+        Coverage (0 fluid, 1 array) of one frame's fine strip from some stations basal of the
+        dark end on.
+    dark : ndarray, shape (stations,), bool
+        Stations dark at their darkest offset.
+    seed : ndarray, shape (stations,), int
+        Each station's darkest offset.
+    inside : ndarray, shape (offsets,), bool
+        Offsets clear of the walls.
+    end : int
+        The dark run's last station (index into the window).
+    step_mm, offset_mm : float
+        Station and offset spacing (mm).
+    diameter_mm : float
+        The array's diameter (mm) near its tip.
+    cfg : MeasureConfig
+        ``bubble_*`` settings.
+
+    Returns
+    -------
+    end : int
+        The array's last station (``end`` when no bubble is on its path; -1 when none is left).
+    stop : int or None
+        The first station of the bubble's rim (the tip lies before it), or None.
+    """
+    bright = ((cover <= cfg.bubble_bright) & inside[:, None]).astype(np.uint8)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=4)
+    m, n = cover.shape
+    x, y, w, h, area = (stats[1:, k] for k in range(5))
+    wid_mm = h * offset_mm
+    compact = _compact(x, y, w, h, area, m, n, step_mm, offset_mm, cfg)
+    for k in np.flatnonzero(compact)[np.argsort(x[compact])].tolist():
+        before = np.flatnonzero(dark[: x[k]])
+        if len(before) == 0 or x[k] > end + 1 + int(np.ceil(cfg.max_gap_mm / step_mm)):
+            continue
+        track = np.median(seed[before[-int(np.ceil(cfg.bubble_track_mm / step_mm)):]])
+        if not (y[k] <= track < y[k] + h[k]):  # beside the array's path, not on it
+            continue
+        reach = max(int(round(0.25 * diameter_mm / offset_mm)), 0)  # rows within a quarter diameter of it
+        rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
+        path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
+        far = int(np.argmin(np.append(path[x[k] + w[k]:], False)))  # the rim beyond the interior
+        if wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm:
+            continue  # as narrow as a band, and array beyond it
+        # the rim before it, and any array it touches: the longest dark run that ends where the
+        # interior begins, over the interior's rows
+        inner = labels[y[k] : y[k] + h[k]] == k + 1
+        first = np.argmax(inner, axis=1)
+        run = _dark_runs(cover[y[k] : y[k] + h[k]] >= cfg.dark_level)
+        near = int(np.max(np.where(first > 0, run[np.arange(h[k]), np.maximum(first - 1, 0)], 0)))
+        if near * step_mm <= cfg.bubble_rim_mm and x[k] - near > 0:  # fluid before the rim: the array ends there
+            stop = int(x[k]) - near
+            last = np.flatnonzero(path[:stop] & dark[:stop])
+        else:  # the rim touches the array: take as much off as the rim beyond the interior is thick
+            stop = max(int(x[k]) - far, 0)
+            last = np.flatnonzero(dark[:stop])
+        return (min(int(last[-1]), end) if len(last) else -1), stop
+    return end, None

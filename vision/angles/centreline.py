@@ -1,0 +1,194 @@
+"""Stage 3, the centre line: the array's centre offset, its tip and its gap to the outer wall.
+
+From the edges and the array's known shape (:func:`centre_line_batch`), with the checks that
+refuse a dark run that is not the array's (no edges near its end, edges not the array's width,
+a last stretch without the inner edge or crossing a wall).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tympani.vision.angles.arrays import odd_ceil, take2d
+from tympani.vision.angles.edges import Edges
+from tympani.vision.angles.plan import MeasurePlan
+from tympani.vision.angles.ragged import (
+    Ragged,
+    distance_from_tip_ragged,
+    extrapolate_ragged,
+    row_quantiles,
+    running_median_ragged,
+    smooth_ragged,
+    tip_crossing_ragged,
+)
+from tympani.vision.geometry import ElectrodeArray
+
+
+@dataclass(frozen=True)
+class CentreLine:
+    """Stage 3: the tip (fractional station ``tip_f`` from ``lo``, point ``tip_mm``), and per
+    station the centre-line point ``line`` (mm), the gap (mm), the radius (mm) and whether
+    the edges were used (``measured``)."""
+
+    tip_f: float
+    tip_mm: np.ndarray
+    line: np.ndarray
+    gap: np.ndarray
+    radius: np.ndarray
+    measured: np.ndarray
+    width_ratio: float  # seen width over modelled width, median where both edges show (NaN: < 10 such)
+
+
+def _centre_offsets(
+    v_in: np.ndarray,
+    v_out: np.ndarray,
+    ok_in: np.ndarray,
+    ok_out: np.ndarray,
+    s: np.ndarray,
+    stretch: np.ndarray,
+    array: ElectrodeArray,
+    cap_min: float,
+    tol_mm: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The array's centre offset at each station from its edges and its known shape.
+
+    Parameters
+    ----------
+    v_in, v_out : ndarray, shape (n,)
+        Offsets (mm, along the backbone normal) of the inner and the outer edge.
+    ok_in, ok_out : ndarray, shape (n,), bool
+        Where each edge was seen on the array's body.
+    s : ndarray, shape (n,)
+        Distance (mm) of each station's centre-line point from the tip.
+    stretch : ndarray, shape (n,)
+        Width across the channel over the array's width (1 / cosine of its slant).
+    array : ElectrodeArray
+        The array (radius along its length; the tip is a half disc).
+    cap_min : float
+        Stations closer to the tip than this fraction of the tip radius are not used.
+    tol_mm : float
+        How much narrower (mm) than expected the two edges may be before the station is
+        taken to be cut by a band's border (at least 30 % of the half-width is allowed).
+
+    Returns
+    -------
+    v_c : ndarray, shape (n,)
+        Centre offset (mm): the inner edge plus the visible half-width where the inner edge
+        was seen, else the outer edge minus it.
+    measured : ndarray, shape (n,), bool
+        Stations where ``v_c`` was measured.
+    radius : ndarray, shape (n,)
+        The array's radius (mm) at each station.
+    """
+    length = array.length_mm  # ElectrodeArray.radius, without its Python-level overhead
+    s_in = np.minimum(np.maximum(s, 0.0), length)
+    radius = 0.5 * (array.tip_diameter_mm + (array.base_diameter_mm - array.tip_diameter_mm) * s_in / length)
+    r_tip = 0.5 * array.tip_diameter_mm
+    body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
+    visible = body_half * stretch
+    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - np.maximum(tol_mm, 0.3 * visible))
+    use_in = ok_in & ~cut
+    use_out = ok_out & ~ok_in & ~cut
+    v_c = np.where(use_in, v_in + visible, v_out - visible)
+    return v_c, (use_in | use_out) & (s >= cap_min * r_tip), radius
+
+
+def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine | str]:
+    """Stage 3: each frame's centre line, tip and gap to the outer wall, or why there is none: no
+    edges, the edges seen on both sides do not have the array's width, or no edges within
+    ``tip_reach_mm`` of the tip (the dark run goes on where no array shows: a bubble's rim, a
+    shadow, a doubled wall line)."""
+    cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
+    u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
+    k_smooth = odd_ceil(cfg.gap_smooth_mm / step)
+    tol = cfg.outlier_px / ppm
+    span = max(4, int(np.ceil(0.4 / step)))
+    out: list[CentreLine | str] = ["array edges not found"] * len(edges)
+    rg = Ragged.of([e.n for e in edges])
+    lo = np.array([e.lo for e in edges], dtype=np.intp)
+    station = lo[rg.row] + rg.local
+    v_in, v_out, ok_in, ok_out = (np.concatenate([getattr(e, name) for e in edges])
+                                  for name in ("v_in", "v_out", "ok_in", "ok_out"))
+    # pass 1: distance from the tip along the backbone, array parallel to the channel
+    s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
+    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol)
+    live = np.flatnonzero(rg.count(measured) >= 3)
+    if not len(live):
+        return out
+    if len(live) < len(edges):  # the others have no centre line
+        sub, rg = rg.subset(live)
+        lo, station = lo[live], station[sub]
+        v_in, v_out, ok_in, ok_out, v_c, measured = (a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured))
+    n, row, local = rg.n, rg.row, rg.local
+    # outliers: off their neighbours' running median by more than 3 robust SDs (and tol)
+    at = np.flatnonzero(measured)
+    med = np.zeros(len(v_c))
+    med[at] = running_median_ragged(v_c[at], Ragged.of(rg.count(measured)), k_smooth)
+    dev = np.abs(v_c - med)
+    mad = row_quantiles(rg.pad(dev, 0.0), rg.pad(measured, False), 0.5)
+    measured &= dev <= np.maximum(tol, 3.0 * 1.4826 * mad)[row]
+    (centre,), (slant,) = smooth_ragged(v_c[None, :], measured, rg, odd_ceil(2.5 * cfg.gap_smooth_mm / step))
+    stretch = np.sqrt(1.0 + (slant / step) ** 2)
+    # the tip: the half-level crossing along the centre line, extrapolated from the body
+    last = rg.last(measured)
+    half_tip = plan.half_mm[lo + n - 1]
+    tip_v = extrapolate_ragged(local.astype(float), v_c, measured & (local >= (last - 1.0 / step)[row]), 1.0 / step, rg)
+    bare = (n - 1 - last) * step > cfg.tip_reach_mm  # no array edges near the tip
+    for b in np.flatnonzero(bare):
+        out[int(live[b])] = f"no array edges within {cfg.tip_reach_mm:g} mm of the dark run's end"
+    tip_u = np.minimum(np.maximum(tip_v / half_tip, -1.0), 1.0)
+    k0 = np.maximum(n - 1 - span, 0)
+    tail = Ragged.of([len(edges[b].fluid) - k for b, k in zip(live.tolist(), k0.tolist())])
+    fine = np.concatenate([edges[b].fine[:, k:] for b, k in zip(live.tolist(), k0.tolist())], axis=1)
+    fluid = np.concatenate([edges[b].fluid[k:] for b, k in zip(live.tolist(), k0.tolist())])
+    contrast = np.concatenate([edges[b].contrast[k:] for b, k in zip(live.tolist(), k0.tolist())])
+    m = fine.shape[0]
+    pos = np.minimum(np.maximum(((tip_u - u0) / du)[:, None] + np.array([-1.0, 0.0, 1.0]), 0), m - 1)  # (B, 3)
+    j0 = np.minimum(pos.astype(int), m - 2)
+    f, j0 = (pos - j0).T[:, tail.row], j0.T[:, tail.row]
+    cols = np.arange(len(tail.row))
+    sampled = take2d(fine, j0, cols) * (1 - f) + take2d(fine, j0 + 1, cols) * f  # the mean over 3 offsets around the tip's
+    along = (fluid - (sampled[0] + sampled[1] + sampled[2]) / 3.0) / contrast
+    level = np.array([edges[b].level for b in live.tolist()])
+    tip_f = k0 + tip_crossing_ragged(along, level, (n - 1 - k0).astype(float), tail)
+    tip_mm = plan.to_mm(lo + tip_f, tip_u)
+    # pass 2: distance along the measured centre line, slant across the channel -> gaps
+    point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
+    s = distance_from_tip_ragged(point + centre[:, None] * normal, tip_mm, tip_f, rg)
+    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol)
+    before = local <= tip_f[row]
+    measured &= measured2 & before
+    good = rg.count(measured) >= 3
+    # where both edges show, the array must be about as wide as it is (noise is not)
+    both = ok_in & ok_out & before & (s >= plan.r_tip_mm)
+    width = 2.0 * radius * stretch
+    fits = np.abs(v_out - v_in - width) <= np.maximum(2.0 / ppm, 0.3 * width)
+    n_both = rg.count(both)
+    good &= ~((n_both >= 10) & (rg.count(fits & both) / np.maximum(n_both, 1) < 0.5))
+    stretch_tip = before & (s <= cfg.tip_width_mm)
+    min_count = int(np.ceil(0.25 * cfg.tip_width_mm / step))
+    n_tip = rg.count(stretch_tip)
+    odd = (n_tip >= min_count) & (rg.count(ok_in & stretch_tip) < cfg.tip_inner_min * n_tip)
+    # a centre line closer to a wall than half the array's radius: the array would cross it
+    n_meas = rg.count(measured & stretch_tip)
+    in_wall = measured & stretch_tip & ((half - np.abs(v_c)) < 0.5 * radius)
+    odd |= (n_meas >= min_count) & (rg.count(in_wall) >= cfg.tip_wall_share * n_meas)
+    for b in np.flatnonzero(good & ~bare & odd):
+        out[int(live[b])] = f"the dark run's last {cfg.tip_width_mm:g} mm does not look like the array (a line?)"
+    keep = np.flatnonzero(good & ~bare & ~odd)
+    if not len(keep):
+        return out
+    seen = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
+    width_ratio = np.where(n_both >= 10, row_quantiles(rg.pad(seen, 0.0), rg.pad(both, False), 0.5), np.nan)
+    sub, part = rg.subset(keep)
+    ok = measured[sub]
+    (centre, gap), _ = smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
+    line = point[sub] + centre[:, None] * normal[sub]
+    radius = radius[sub]
+    for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
+        a = slice(s0, s0 + m_b)
+        out[int(live[b])] = CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a],
+                                        float(width_ratio[b]))
+    return out

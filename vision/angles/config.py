@@ -1,0 +1,292 @@
+"""Settings of the measurement and the record of one frame's result.
+
+:class:`MeasureConfig` holds every setting of :func:`~tympani.vision.angles.measure_frame`;
+:class:`FrameMeasurement` is what it finds in a frame, and :func:`failure` the record of a frame
+that could not be measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """Settings of the per-frame measurement (:func:`measure_frame`).
+
+    Parameters
+    ----------
+    contact_tol_mm : float
+        Largest gap (mm) between the array's outer edge and the outer wall that counts as
+        contact.
+    contact_persist_mm : float
+        An excursion of the measured gap above ``contact_tol_mm`` shorter than this (mm, along
+        the array), after which contact holds again for as long, is measurement noise and does
+        not end the contact run (a real departure from the wall widens steadily).
+    contact_excess_mm : float
+        Excess gap (mm) over ``contact_tol_mm`` beyond which an excursion always ends the run.
+    contact_bias_mm : float
+        Largest allowance (mm) for a bias of the measured gap. Blur, compression, doubled
+        wall lines, a registration a pixel or two off and an array somewhat wider than modelled
+        can make a gap read some hundredths of a millimetre wide all along; where
+        the median measured gap of the stretch from the tip to the first gap above
+        ``contact_tol_mm + contact_excess_mm`` exceeds ``contact_tol_mm / 2``, the excess (up
+        to this much) is taken as bias and added to the tolerance. (With gaps read without
+        bias, touching stretches have a median gap well under half the tolerance.)
+    station_step_px : float
+        Spacing (px) of the strip's stations along the channel's backbone.
+    offset_step_px : float
+        Largest spacing (px) of the strip's offsets across the channel (where it is widest).
+    min_step_mm : float
+        Least spacing (mm) of the stations and of the offsets: above ``1 / min_step_mm`` px/mm
+        (33 px/mm) the steps grow past ``station_step_px`` and ``offset_step_px``, so that
+        a frame's cost stops growing with the magnification (``measure_frame`` 1.2-1.5x faster
+        at 35-70 px/mm and 2.3x at 60-110 px/mm; theta_tip max error on the 36 zoomed-in test
+        frames 0.0016 -> 0.0027 rad, see ``tests/test_angles.py``).
+    coarse_stride : int
+        Every how many offsets and stations the coarse strip (used to find the array) keeps.
+    lateral_extent : float
+        The strip spans normalised lateral offsets ``u`` in ``[-lateral_extent,
+        lateral_extent]`` (``u = -1`` the inner wall, ``u = +1`` the outer wall).
+    wall_margin_px : float
+        Width (px) next to each wall left out of the channel's *interior*, so that wall lines
+        and their blur are not taken for the array or for the fluid.
+    min_interior : float
+        Smallest half-width of the interior, as a fraction of the channel's half-width.
+    fluid_window_mm : float
+        Length (mm) along the channel of the blocks whose percentile estimates the fluid level
+        (a median over three blocks follows).
+    fluid_percentile : float
+        Percentile (0–100) of the stations' brightest interior values taken as a first fluid
+        level (the second is the median over stations whose brightest value is fluid).
+    fluid_reach_mm : float
+        Distance (mm) along the channel over which a block's fluid level is compared with its
+        neighbours' (to find blocks where the array fills the channel). The light must not fall
+        by more than ``1 - fluid_floor`` over it, or plain fluid is taken for the array: at
+        6 mm (before session 6) the tip ran on by 1-2 rad under strong uneven light.
+    fluid_floor : float
+        A block darker than this fraction of its brightest neighbour within ``fluid_reach_mm``
+        is taken to be filled by the array, and its fluid level interpolated.
+    probe_mm : float
+        Length (mm) of the outer end of the entry channel where the array must be seen.
+    beside_mm : float
+        Length (mm) of channel over which the array must be seen beside the fluid for a frame
+        to count as having an array in the channel.
+    band_border_mm : float
+        Length (mm) along the channel either side of a metal band's border that the fluid's
+        second estimate leaves out (at least two coarse stations): a border is blurred, and
+        oblique where the array crosses the channel, so it spans a length in mm, not in px.
+        Two coarse stations alone let band brightness into the fluid level above ~50 px/mm.
+    dark_level : float
+        Darkness (0 fluid, 1 array) from which a station holds the array.
+    body_level : float
+        Darkness from which a station is array body whose edges are measured (stations below
+        are metal bands, band borders or noise).
+    border_px : int
+        Stations (px apart) either side of a band's border (or any non-body station) whose
+        edges are not used: blur and the smoothing along the channel mix the band into them.
+    edge_level : float
+        Coverage (0 fluid, 1 array) at which edges and the tip are located.
+    body_fill : float
+        Least median, over the array's stations, of the mean coverage (0 fluid, 1 array) between
+        a station's two edges: below it the frame has no array (a body is mostly dark between its
+        edges; the grain of noise or compression is not).
+    fluid_run : float
+        Share of the array's tip diameter (dimensionless) the fluid beside an edge must span
+        across the channel, unless it reaches the wall: a bright highlight along the middle of a
+        round, lit array is narrower, and is not taken for the fluid.
+    min_body_mm : float
+        Least length (mm) of array basal of the tip whose edges are sought, even where part of it
+        is still in the entry channel (beyond, the edges are sought from theta_start on).
+    bubble_bright : float
+        Highest coverage (dimensionless, 0 fluid, 1 array) of a bubble's interior.
+    bubble_min_mm2 : float
+        Least area (mm²) of a bubble's interior.
+    bubble_max_mm : float
+        Largest radius (mm) of a bubble's interior.
+    bubble_fill : tuple of float
+        Least and largest share (dimensionless) of its bounding box a bubble's interior fills (a
+        disc: 0.79; a band, a rectangle: about 1).
+    bubble_wider : float
+        Width (dimensionless, times the array's tip diameter) above which an enclosed bright
+        region cannot be a band.
+    bubble_rim_mm : float
+        Longest dark stretch (mm) along the array's path beyond a narrower one for it to be a
+        bubble's rim rather than more array.
+    bubble_aspect : float
+        Largest ratio (dimensionless) of the longer to the shorter side of that box.
+    bubble_track_mm : float
+        Length (mm) of the dark stations before a bubble whose median darkest offset is the
+        array's path.
+    max_gap_mm : float
+        Longest stretch (mm) along the array that may look like fluid (a metal band as bright
+        as the fluid) without ending it.
+    min_contrast : float
+        Smallest fluid-minus-array difference (grey levels) of a usable frame.
+    gap_smooth_mm : float
+        Length (mm) along the channel of the local line fits that smooth centre offsets and
+        gaps (the slant is fitted over 2.5 times this).
+    outlier_px : float
+        Smallest deviation (px) of a station's centre offset from its neighbours' median that
+        drops the station.
+    plateau_px : tuple of float
+        Nearest and farthest distance (px) from the array's inner edge of the samples whose
+        coverage gives the local fluid and array levels the edge is relocated between.
+    tip_reach_mm : float
+        Farthest (mm) the centre line is extrapolated from the last station with measured edges
+        to the tip; a frame whose dark run goes on farther is not measured (what continues it
+        is not the array's body: a bubble's rim, a shadow, a doubled wall line).
+    tip_width_mm : float
+        Length (mm) before the tip over which the array must show as the array: its inner edge
+        found (``tip_inner_min``) and its centre line clear of the walls (``tip_wall_share``). A
+        frame whose dark run ends in something else (a doubled wall line followed into the next
+        turn) is not measured.
+    tip_inner_min : float
+        Least share of the tip stretch's stations where the array's inner edge (the one away
+        from the outer wall, which it shows in contact too) is found. On 150 random frames with
+        doubled walls, every frame under 0.1 was wrong (a wall line followed past the tip) and
+        the correct ones had 0.17 or more.
+    tip_wall_share : float
+        A frame whose tip stretch has its centre line closer to a wall than half the array's
+        radius at this share of its measured stations or more is not measured: the array cannot
+        cross a wall, a wall line followed past the tip lies there.
+    cap_min : float
+        Stations of the rounded tip closer to the tip than this fraction of its radius are not
+        used for edges (farther cap stations are, with the half disc's width).
+    angle_step_mm : float
+        Approximate spacing (mm) of the centre-line points handed to :func:`contact_angles`.
+    min_tip_px : float
+        Smallest width (px) of the array's tip in the image (14.2 px/mm with the default
+        array): at smaller scales every frame is refused ("array too small in the image").
+        On 150 random 640x480 frames at 10-20 px/mm, 17-61 % of those below it were measured,
+        three of them far off (theta_tip by 0.18 rad, theta_bot by 2.1 and 2.5 rad, at 11-13
+        px/mm); from 14 px/mm up none was off by more than 0.03 rad (tip) or 0.25 rad (bot).
+    """
+
+    contact_tol_mm: float = 0.05
+    contact_persist_mm: float = 0.5
+    contact_excess_mm: float = 0.1
+    contact_bias_mm: float = 0.1
+    station_step_px: float = 1.0
+    offset_step_px: float = 1.0
+    min_step_mm: float = 0.03
+    coarse_stride: int = 2
+    lateral_extent: float = 1.1
+    wall_margin_px: float = 3.5
+    min_interior: float = 0.25
+    fluid_window_mm: float = 1.5
+    fluid_percentile: float = 25.0
+    fluid_reach_mm: float = 3.0
+    fluid_floor: float = 0.85
+    probe_mm: float = 1.5
+    beside_mm: float = 0.3
+    band_border_mm: float = 0.1
+    dark_level: float = 0.5
+    body_level: float = 0.8
+    border_px: int = 1
+    edge_level: float = 0.5
+    fluid_run: float = 0.4
+    body_fill: float = 0.6
+    min_body_mm: float = 2.0
+    bubble_bright: float = 0.3
+    bubble_min_mm2: float = 0.02
+    bubble_max_mm: float = 0.9
+    bubble_fill: tuple[float, float] = (0.5, 0.86)
+    bubble_aspect: float = 2.5
+    bubble_wider: float = 1.15
+    bubble_rim_mm: float = 0.2
+    bubble_track_mm: float = 0.6
+    max_gap_mm: float = 0.8
+    min_contrast: float = 18.0
+    gap_smooth_mm: float = 0.4
+    outlier_px: float = 1.5
+    plateau_px: tuple[float, float] = (2.5, 4.0)
+    tip_reach_mm: float = 1.5
+    tip_width_mm: float = 2.0
+    tip_inner_min: float = 0.1
+    tip_wall_share: float = 0.5
+    cap_min: float = 0.4
+    angle_step_mm: float = 0.1
+    min_tip_px: float = 8.5
+
+
+@dataclass(frozen=True)
+class FrameMeasurement:
+    """What :func:`measure_frame` found in one frame.
+
+    Parameters
+    ----------
+    ok : bool
+        Whether the angles were measured.
+    reason : str
+        Why not (``''`` when ``ok``).
+    theta_tip, theta_bot, theta_con : float
+        The angles (rad); NaN when not ``ok``.
+    tip_mm, bot_mm : ndarray, shape (2,), or None
+        Tip and contact start on the centre line (mm, phantom frame).
+    centreline_mm : ndarray, shape (n, 2), or None
+        Measured centre line (mm, phantom frame), tip first, down to ``theta_start`` (down to
+        the entry's outer end when the tip is in the entry channel).
+    outline_mm : ndarray, shape (m, 2), or None
+        Closed outline (mm, phantom frame) of that part of the array.
+    gap_mm : ndarray, shape (n,), or None
+        Measured gap (mm) between the array's outer edge and the outer wall at each
+        centre-line point.
+    extras : dict of str to float
+        Diagnostics: ``depth_mm`` (length of array past ``theta_start``, mm; negative when the
+        tip is in the entry channel), ``contrast`` (fluid minus array, grey levels),
+        ``edge_fraction`` (fraction of the array's stations whose edges were used),
+        ``width_ratio`` (the array's width between its two edges over the modelled
+        :class:`~vision.geometry.ElectrodeArray`'s, median over the stations where both show;
+        NaN where fewer than 10 do: about 1.01 when the model is right), ``bare_tip_mm`` (length
+        of the array, mm, between its last station with measured edges and the tip: the tip's
+        offset is extrapolated over it), ``time_ms`` (ms spent on the frame).
+    timings : dict of str to float
+        Seconds spent per stage (``survey``, ``edges``, ``centre_line``, ``angles``); not in
+        :meth:`to_row`.
+    """
+
+    ok: bool
+    reason: str = ""
+    theta_tip: float = float("nan")
+    theta_bot: float = float("nan")
+    theta_con: float = float("nan")
+    tip_mm: np.ndarray | None = None
+    bot_mm: np.ndarray | None = None
+    centreline_mm: np.ndarray | None = None
+    outline_mm: np.ndarray | None = None
+    gap_mm: np.ndarray | None = None
+    extras: dict[str, float] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def to_row(self) -> dict[str, Any]:
+        """Scalar columns for an angles table: the angles, ``ok``, ``reason`` and the extras."""
+        row: dict[str, Any] = dict(
+            theta_tip=self.theta_tip,
+            theta_bot=self.theta_bot,
+            theta_con=self.theta_con,
+            ok=bool(self.ok),
+            reason=self.reason,
+        )
+        row.update({key: float(value) for key, value in self.extras.items()})
+        return row
+
+
+def failure(reason: str, **extras: float) -> FrameMeasurement:
+    """A not-ok measurement with a reason.
+
+    Parameters
+    ----------
+    reason : str
+        Why the frame was not measured.
+    **extras : float
+        Diagnostics known so far (see :class:`FrameMeasurement`), e.g. ``contrast`` (grey levels).
+
+    Returns
+    -------
+    FrameMeasurement
+    """
+    return FrameMeasurement(False, reason, extras={k: float(v) for k, v in extras.items()})

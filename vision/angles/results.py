@@ -1,0 +1,104 @@
+"""Stage 4, the angles: each frame's theta_tip, theta_bot and theta_con, depth and outline."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tympani.vision.angles.centreline import CentreLine
+from tympani.vision.angles.config import FrameMeasurement
+from tympani.vision.angles.definitions import spiral_angle
+from tympani.vision.angles.edges import Edges
+from tympani.vision.angles.plan import MeasurePlan
+from tympani.vision.angles.ragged import Ragged
+
+
+def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[str, float]]]
+                   ) -> list[FrameMeasurement]:
+    """Stage 4: each frame's angles, depth and outline from its centre line, all frames at once.
+
+    The centre line is the tip, then every ``angle_step_mm`` of stations from the last one at or
+    before the tip, basal-wards; the frames' points are laid end to end (a :class:`Ragged`
+    batch), their angles taken in one call (:func:`spiral_angle` works point by point) and
+    :func:`contact_angles`' rule applied to all frames at once. The depth is the centre line's
+    length from the tip to ``theta_start`` (negative, along the entry, when the tip is still in
+    the entry channel)."""
+    cfg, step = plan.cfg, plan.step_mm
+    k = max(1, int(round(cfg.angle_step_mm / step)))
+    los = np.array([e.lo for e, _, _ in staged], dtype=np.intp)
+    tip_f = np.array([c.tip_f for _, c, _ in staged])
+    tip_mm = np.array([c.tip_mm for _, c, _ in staged])
+    n = np.array([e.n for e, _, _ in staged], dtype=np.intp)
+    line, gap, radius = (np.concatenate([getattr(c, name) for _, c, _ in staged]) for name in ("line", "gap", "radius"))
+    # the kept stations: every k-th from the last one at or before the tip
+    top = np.minimum(np.floor(tip_f).astype(np.intp), n - 1)
+    kept = Ragged.of(top // k + 1)
+    keep = top[kept.row] - k * kept.local  # station in its frame
+    at = (np.cumsum(n) - n)[kept.row] + keep  # position in line, gap, radius
+    # the centre line: the tip, then the kept stations' points
+    cl = Ragged.of(kept.n + 1)
+    inner = cl.start[kept.row] + 1 + kept.local  # positions of the kept points in cl
+    points = np.empty((len(cl.row), 2))
+    points[cl.start], points[inner] = tip_mm, line[at]
+    gaps = np.empty(len(cl.row))
+    gaps[cl.start], gaps[inner] = gap[at[kept.start]], gap[at]
+    theta = spiral_angle(points, plan.angles)
+    # contact_angles' rule: the contact run from the tip ends where the gap first exceeds the
+    # tolerance, but not at a blip of measurement noise: an excursion shorter than
+    # contact_persist_mm, by less than contact_excess_mm, after which contact holds again for
+    # contact_persist_mm (a real departure from the wall widens steadily)
+    # the tolerance, raised by any bias of the measured gaps (MeasureConfig.contact_bias_mm): the
+    # median gap of each frame's stretch before its first gap over tol + excess
+    hard = np.where(gaps > cfg.contact_tol_mm + cfg.contact_excess_mm, cl.local, cl.n[cl.row])
+    stretch = cl.local < np.minimum.reduceat(hard, cl.start)[cl.row]
+    counts = cl.count(stretch)
+    ranked = np.sort(cl.pad(np.where(stretch, gaps, np.inf), np.inf), axis=1)  # each frame's stretch, ascending
+    median = ranked[np.arange(len(counts)), np.maximum(counts - 1, 0) // 2]  # the lower median
+    bias = np.where(counts > 0, np.clip(median - 0.5 * cfg.contact_tol_mm, 0.0, cfg.contact_bias_mm), 0.0)
+    tol = (cfg.contact_tol_mm + bias)[cl.row]
+    touching = gaps <= tol
+    pos = np.arange(len(gaps))
+    end = (cl.start + cl.n)[cl.row]
+    # the next touching / non-touching point of each point's frame, or the frame's end (a later
+    # frame's points all lie at or beyond this frame's end, so the running minimum stays in it)
+    next_touch = np.minimum.accumulate(np.where(touching, pos, end)[::-1])[::-1]
+    next_away = np.minimum.accumulate(np.where(~touching, pos, end)[::-1])[::-1]
+    persist = int(np.ceil(cfg.contact_persist_mm / cfg.angle_step_mm))
+    resumes = next_away[np.minimum(next_touch, len(gaps) - 1)] - next_touch >= persist
+    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= tol + cfg.contact_excess_mm)
+    away = np.where(~touching & ~blip, cl.local, cl.n[cl.row])
+    out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
+    i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
+    i0 = cl.start + np.maximum(i_last, 0)
+    i1 = cl.start + np.minimum(i_last + 1, cl.n - 1)
+    g0, g1 = gaps[i0], gaps[np.minimum(i0 + 1, len(gaps) - 1)]
+    frac = np.where((out_at < cl.n) & (g1 != g0),
+                    np.minimum(np.maximum((tol[i0] - g0) / (g1 - g0), 0.0), 1.0), 0.0)
+    contact = touching[cl.start]
+    theta_tip = theta[cl.start]
+    theta_bot = np.where(contact, theta[i0] + frac * (theta[i1] - theta[i0]), theta_tip)
+    bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
+    seg = np.diff(points, axis=0)
+    seg = np.hypot(seg[:, 0], seg[:, 1])
+    seg[cl.start[1:] - 1] = 0.0  # between frames
+    depth = np.add.reduceat(np.append(seg, 0.0), cl.start)
+    basal = los + keep[kept.start + kept.n - 1]  # a line that starts in the entry: less its part there
+    depth -= np.maximum(plan.p_mm[plan.i_start] - plan.p_mm[basal], 0.0)
+    entry = los + tip_f < plan.i_start  # tip in the entry channel: theta = phi (k = 0), no contact
+    theta_bot = np.where(entry, theta_tip, theta_bot)
+    bot = np.where(entry[:, None], tip_mm, bot)
+    depth = np.where(entry, -(plan.p_mm[plan.i_start] - plan.p_mm[los] - tip_f * step), depth)
+    # the outline: the tip, one side tipwards to base, the other back
+    side = radius[at][:, None] * plan.normal[los[kept.row] + keep]
+    ol = Ragged.of(2 * kept.n + 1)
+    outline = np.empty((len(ol.row), 2))
+    outline[ol.start] = tip_mm
+    outline[ol.start[kept.row] + 1 + kept.local] = line[at] - side
+    outline[ol.start[kept.row] + 2 * kept.n[kept.row] - kept.local] = line[at] + side
+    results = []
+    rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
+               bot, depth.tolist(), entry.tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry in rows:
+        extras["depth_mm"] = depth_b
+        results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
+                                        cl_b, outline_b, gaps_b, extras))
+    return results

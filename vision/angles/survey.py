@@ -1,0 +1,234 @@
+"""Stage 1, the survey: fluid level, the array's level and its dark run along the whole channel.
+
+The survey of B frames runs at once (:func:`survey_batch`): the coarse strip is the same for
+every frame of a plan, so the strips are stacked along a leading axis and each step runs once
+per batch (the remap and the blur stay per frame); every step works row by row, so a frame's
+survey does not depend on the others in its batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from tympani.vision.angles.arrays import erode
+from tympani.vision.angles.config import FrameMeasurement, MeasureConfig, failure
+from tympani.vision.angles.plan import MeasurePlan
+from tympani.vision.angles.ragged import fill_rows, interp_rows, row_quantiles
+
+
+@dataclass(frozen=True)
+class Survey:
+    """Stage 1 (coarse strip of the whole channel), at every ``sa``-th station.
+
+    ``fluid_c`` fluid level (grey levels), ``rho`` array / fluid, ``contrast`` fluid − array
+    at the entry (grey levels), ``seed_c`` darkest offset (coarse index), ``tip_est`` the
+    dark run's last station (fine index).
+    """
+
+    fluid_c: np.ndarray
+    rho: float
+    contrast: float
+    seed_c: np.ndarray
+    tip_est: int
+
+
+def _band_border_c(cfg: MeasureConfig, step_mm: float) -> int:
+    """Coarse stations either side of a band's border kept out of the fluid's second estimate
+    (``cfg.band_border_mm``, at least 2), for stations ``step_mm`` (mm) apart."""
+    return max(2, int(np.ceil(cfg.band_border_mm / (max(1, int(cfg.coarse_stride)) * step_mm))))
+
+
+def _fluid_levels(
+    brightest: np.ndarray, in_view: np.ndarray, block: int, percentile: float, reach: int, floor: float
+) -> np.ndarray:
+    """The fluid's grey level along the channel, in each row (frame) of ``brightest``.
+
+    Parameters
+    ----------
+    brightest : ndarray, shape (B, n), float32
+        Brightest interior value (grey levels) at each station of each frame.
+    in_view : ndarray, shape (B, n), bool
+        Stations used, per frame.
+    block : int
+        Length (stations) of the blocks whose percentile is taken.
+    percentile : float
+        Percentile (0–100).
+    reach : int
+        How many blocks either side a block is compared with.
+    floor : float
+        A block whose level is below this fraction of the brightest block level within
+        ``reach`` is taken to be filled by the array and replaced from its neighbours.
+
+    Returns
+    -------
+    ndarray, shape (B, n)
+        Fluid level (grey levels): a low percentile of ``brightest`` in consecutive blocks
+        (blocks filled by the array interpolated from the others), the median of each block
+        and its two neighbours, interpolated between block centres; 1 in a frame with no
+        station used. It ignores the array where fluid shows beside it, metal bands brighter
+        than the fluid (a minority of any block) and the stations not used (interpolated from
+        the others).
+
+    Notes
+    -----
+    A frame with every station used compares its blocks with the envelope in ``brightest``'s
+    precision (float32), the others in float64 (their values interpolated); the rest is exact
+    in float64 either way. Row by row this equals the same computation on each frame alone
+    (``tests/test_angles_batch.py``).
+    """
+    n_rows, n = brightest.shape
+    stations = np.arange(n)
+    all_in, any_in = in_view.all(axis=1), in_view.any(axis=1)
+    values = brightest.astype(np.float64)  # exact
+    partial = (any_in & ~all_in)[:, None]
+    if partial.any():  # stations out of view interpolated from those in view
+        fill_rows(values[:, None, :], in_view & partial, ~in_view & partial, stations.astype(float))
+    block = max(1, min(int(block), n))
+    n_blocks = n // block
+    blocks = values[:, : n_blocks * block].reshape(n_rows, n_blocks, block)
+    q = int(round(percentile / 100.0 * (block - 1)))
+    level = np.partition(blocks, q, axis=2)[:, :, q]
+    centres = block * np.arange(n_blocks) + 0.5 * (block - 1)
+    envelope = cv2.dilate(level, np.ones((1, 2 * reach + 1), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    single = all_in if brightest.dtype == np.float32 else np.zeros(n_rows, bool)
+    thr32 = (envelope.astype(np.float32) * np.float32(floor)).astype(np.float64)
+    fluid_like = np.where(single[:, None], level >= thr32, level >= floor * envelope)
+    partial = (fluid_like.any(axis=1) & ~fluid_like.all(axis=1))[:, None]
+    if partial.any():  # blocks filled by the array interpolated from the others
+        fill_rows(level[:, None, :], fluid_like & partial, ~fluid_like & partial, centres)
+    if n_blocks >= 3:
+        a = np.concatenate([level[:, :1], level[:, :-1]], axis=1)
+        c = np.concatenate([level[:, 1:], level[:, -1:]], axis=1)
+        level = np.maximum(np.minimum(a, level), np.minimum(np.maximum(a, level), c))
+    out = np.ones((n_rows, n))
+    rows = np.flatnonzero(any_in)
+    if len(rows):
+        out[rows] = np.maximum(interp_rows(stations, centres, level[rows]), 1.0)
+    return out
+
+
+def _array_ratios(
+    darkest: np.ndarray, brightest: np.ndarray, steepest: np.ndarray, fluid: np.ndarray, in_view: np.ndarray,
+    min_count: int,
+) -> np.ndarray:
+    """The array's grey level as a fraction of the fluid's in each row (frame), NaN where it is
+    not seen.
+
+    Parameters
+    ----------
+    darkest, brightest : ndarray, shape (B, n)
+        Darkest and brightest interior value (grey levels) at each station.
+    steepest : ndarray, shape (B, n)
+        Largest change (grey levels) between neighbouring interior samples across the channel.
+    fluid : ndarray, shape (B, n)
+        Estimated fluid level (grey levels) at each station.
+    in_view : ndarray, shape (n,) or (B, n), bool
+        Stations inside the image.
+    min_count : int
+        Fewest stations that must show both.
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        A low quantile (0.3) of darkest / brightest over stations where the array shows
+        beside the fluid (brightest near the fluid level, darkest below 0.88 of it, an edge
+        steeper than 5 % of it between neighbouring samples, and so at the two stations either
+        side): a ratio taken side by side, so uneven lighting cancels; stations only partly
+        covered (band borders, the tip) raise it, hence not the median. NaN when fewer than
+        ``min_count`` stations show both: a dim channel (vignetting) is not taken for an array
+        filling it.
+    """
+    ratio = darkest / np.maximum(brightest, 1.0)
+    beside = in_view & (ratio < 0.88) & (np.abs(brightest / fluid - 1.0) < 0.15) & (steepest > 0.05 * brightest)
+    beside[:, 2:-2] &= beside[:, :-4] & beside[:, 1:-3] & beside[:, 3:-1] & beside[:, 4:]
+    rho = row_quantiles(ratio, beside, 0.3)
+    return np.where(beside.sum(axis=1) < max(min_count, 3), np.nan, rho)
+
+
+def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
+    """Per row (frame) of ``dark``, shape (B, n), the last station of
+    the dark run that starts at the first dark probe station, bridging gaps up to ``max_gap``
+    stations (−1 where no probe station is dark).
+
+    The run ends at the first dark station from its start whose next dark station is more
+    than ``max_gap`` stations away, or that has none.
+    """
+    n_rows, n = dark.shape
+    at = np.arange(n)
+    in_probe = dark[:, probe]
+    start = np.where(in_probe.any(axis=1), probe[in_probe.argmax(axis=1)], n)
+    nxt = np.full((n_rows, n), n)  # the next dark station after each station (n: none)
+    nxt[:, :-1] = np.minimum.accumulate(np.where(dark, at, n)[:, :0:-1], axis=1)[:, ::-1]
+    ends = dark & (at >= start[:, None]) & ((nxt == n) | (nxt - at - 1 > max_gap))
+    return np.where(start < n, ends.argmax(axis=1), -1)
+
+
+def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | FrameMeasurement]:
+    """Stage 1 of each frame of ``imgs`` (grey, the plan's shape), computed together.
+
+    Parameters
+    ----------
+    imgs : list of ndarray
+        Grey frames (uint8 or float32) of the plan's image shape.
+    plan : MeasurePlan
+        The video's plan.
+
+    Returns
+    -------
+    list of Survey or FrameMeasurement
+        Per frame, its survey, or why it cannot be measured (the plan's refusal, the entry or
+        the tip out of view, no array in the channel).
+    """
+    if plan.refusal is not None:
+        return [failure(plan.refusal) for _ in imgs]
+    cfg, step, sa = plan.cfg, plan.step_mm, max(1, int(plan.cfg.coarse_stride))
+    coarse = np.empty((len(imgs),) + plan.coarse_x.shape, np.float32)
+    for img, dst in zip(imgs, coarse):  # each frame's blurred coarse strip, written in place
+        strip = cv2.remap(img, plan.coarse_x, plan.coarse_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        cv2.blur(strip.astype(np.float32, copy=False), (3, 3), dst=dst)
+    n_rows = len(imgs)
+    low = coarse + plan.coarse_penalty
+    darkest = low.min(axis=1)
+    seed_c = (low == darkest[:, None, :]).argmax(axis=1) + plan.coarse_row0  # = argmin (finite values), faster
+    brightest = (coarse - plan.coarse_penalty).max(axis=1)
+    pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
+    steepest = (np.abs(coarse[:, 1:] - coarse[:, :-1]) - pair_penalty).max(axis=1)
+    view_c = plan.in_view[::sa]
+    probe = np.flatnonzero((plan.p_mm[::sa] <= cfg.probe_mm) & view_c)
+    if len(probe) == 0:
+        return [failure("entry out of view") for _ in imgs]
+    block = int(round(cfg.fluid_window_mm / (sa * step)))
+    reach = int(np.ceil(cfg.fluid_reach_mm / cfg.fluid_window_mm))
+    min_beside = int(np.ceil(cfg.beside_mm / (sa * step)))
+    views = np.broadcast_to(view_c, brightest.shape)
+    fluid_c = _fluid_levels(brightest, views, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
+    rho1 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    rho = rho1[:, None]
+    contrast_c = fluid_c * (1.0 - rho)
+    body = (fluid_c - darkest) / contrast_c >= cfg.body_level
+    trusted = view_c & (erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
+    fluid_c = _fluid_levels(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
+    rho2 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
+    dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
+    tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step)).tolist()
+    out: list[Survey | FrameMeasurement] = []
+    for b in range(n_rows):
+        if not rho1[b] == rho1[b] or not rho2[b] == rho2[b]:
+            out.append(failure("array not in channel"))
+            continue
+        c = float(contrast[b])
+        if c < cfg.min_contrast:
+            out.append(failure("array not in channel", contrast=c))
+            continue
+        tip_c = tips_c[b]
+        if tip_c < 0:
+            out.append(failure("array not in channel", contrast=c))
+        elif not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
+            out.append(failure("tip out of view", contrast=c))
+        else:
+            out.append(Survey(fluid_c[b], float(rho2[b]), c, seed_c[b], sa * tip_c))
+    return out
