@@ -251,10 +251,9 @@ UNEVEN_LIGHT = (  # a harsh view: the light falls steeply across the frame, the 
 @pytest.mark.parametrize("depth_mm", [12.0, 13.0, 14.0])
 def test_uneven_light_does_not_extend_the_tip(depth_mm: float) -> None:
     """Fluid dimmed by the light must not pass for the array. With the fluid level compared
-    over 6 mm of channel (``MeasureConfig.fluid_reach_mm`` before session 6), these blocks of
-    plain fluid were taken to be filled by the array, their level was set too bright, and the
-    tip ran on by 1.09, 0.77 and 0.67 rad (a rendered video of this view had the tip about 2 rad
-    too far on for 40 frames). At 3 mm the tip is within 0.005 rad."""
+    over 6 mm of channel (``MeasureConfig.fluid_reach_mm=6``), these blocks of plain fluid are
+    taken to be filled by the array, their level is set too bright, and the tip runs on by
+    1.09, 0.77 and 0.67 rad. At 3 mm (the default) the tip is within 0.005 rad."""
     pose, appearance, nuisance, policy = UNEVEN_LIGHT
     state = pose_at_depth(depth_mm, policy)
     frame = _gray(Scene(pose, W, H, appearance, nuisance, rng=np.random.default_rng(1)).render(state))

@@ -66,7 +66,7 @@ class MeasureConfig:
         Distance (mm) along the channel over which a block's fluid level is compared with its
         neighbours' (to find blocks where the array fills the channel). The light must not fall
         by more than ``1 - fluid_floor`` over it, or plain fluid is taken for the array: at
-        6 mm (before session 6) the tip ran on by 1-2 rad under strong uneven light.
+        6 mm the tip runs on by 1-2 rad under strong uneven light.
     fluid_floor : float
         A block darker than this fraction of its brightest neighbour within ``fluid_reach_mm``
         is taken to be filled by the array, and its fluid level interpolated.
