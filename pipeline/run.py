@@ -70,7 +70,7 @@ def _default_bounds() -> Any:
 
 
 def _default_diagnosis() -> Any:
-    from tympani.pipeline.diagnosis.core import DiagnosisConfig
+    from tympani.pipeline.diagnosis.config import DiagnosisConfig
 
     return DiagnosisConfig()
 
@@ -91,7 +91,7 @@ class RunConfig:
     sync : pipeline.force.sync.SyncConfig
     fit : pipeline.model.identify.FitOptions
     bounds : pipeline.model.bounds.BoundsConfig
-    diagnosis : pipeline.diagnosis.core.DiagnosisConfig
+    diagnosis : pipeline.diagnosis.config.DiagnosisConfig
     scenario : str or None
         Scenario of TABLE I simulated for the force-vs-theta_con overlay (``"S1"``..``"S4"``),
         or None for no overlay.
@@ -384,7 +384,8 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
 
 
 def _diagnose(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.diagnosis.core import diagnose, read_synced
+    from tympani.pipeline.diagnosis.analysis import diagnose
+    from tympani.pipeline.model.identify import read_synced
     from tympani.pipeline.diagnosis.report import summary_line, write_diagnosis
 
     ddir = out / "diagnosis"

@@ -14,20 +14,11 @@ import pandas as pd
 import pytest
 
 from tympani.pipeline.cli import main
-from tympani.pipeline.diagnosis.core import (
-    DATA_NEEDED,
-    DiagnosisConfig,
-    candidates,
-    dead_time,
-    diagnose,
-    diagnosis_to_json,
-    fit_candidate,
-    kernel,
-    lag_foh,
-    predict,
-    prepare,
-    smooth_angles,
-)
+from tympani.pipeline.diagnosis.analysis import diagnose, diagnosis_to_json
+from tympani.pipeline.diagnosis.candidates import candidates, fit_candidate, predict
+from tympani.pipeline.diagnosis.config import DATA_NEEDED, DiagnosisConfig
+from tympani.pipeline.diagnosis.kernels import dead_time, kernel, lag_foh
+from tympani.pipeline.diagnosis.prepare import prepare, smooth_angles
 from tympani.pipeline.model.effects import EFFECTS, EffectContext, first_order_lag
 from tympani.pipeline.model.friction import FrictionParams
 from tympani.pipeline.synthetic.family_a import paper_case, synthetic_dataset
@@ -62,8 +53,8 @@ def test_no_gap_on_effect_free_data(effect_free):
     _, d = effect_free
     assert d.verdict == "no_gap" and d.effect is None
     # nothing beats the reference by much, and the lack-of-fit test of the reference passes
-    assert max(d.decision["gain_lo"].values()) < d.config.min_gain
-    assert abs(d.gap["shrink_pct"]) < 10
+    assert max(d.decision.gain_lo.values()) < d.config.min_gain
+    assert abs(d.gap.shrink_pct) < 10
 
 
 def test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment(strong):
@@ -73,39 +64,39 @@ def test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment(stro
     predict opposite signs."""
     truth, d = strong["sensor_lag"]
     assert truth["detectable"]
-    assert d.verdict == "ambiguous" and d.decision["tied"][:2] == ["sensor_lag", "hydrodynamic_lift"]
-    assert d.decision["variants"]["hydrodynamic_lift"]["used"]
+    assert d.verdict == "ambiguous" and d.decision.tied[:2] == ("sensor_lag", "hydrodynamic_lift")
+    assert d.decision.variants["hydrodynamic_lift"].used
     best = d.experiments[0]
-    assert best["experiment"] == "retraction" and best["complete"]
-    pred = best["predictions"]
-    assert pred["sensor_lag"]["change_g"] > 0 > pred["hydrodynamic_lift"]["change_g"]
+    assert best.experiment == "retraction" and best.complete
+    pred = best.predictions
+    assert pred["sensor_lag"].change_g > 0 > pred["hydrodynamic_lift"].change_g
 
 
 @pytest.mark.parametrize("effect", ["hydrodynamic_lift", "viscous_drag", "sensor_drift"])
 def test_strong_effects_are_identified(strong, effect):
     truth, d = strong[effect]
     assert truth["detectable"]
-    assert d.verdict == "identified" and d.effect == effect, d.decision["reason"]
-    assert d.gap["shrink_pct"] > 15  # held-out RMSE against the measured force (includes the noise floor)
-    assert d.ranking.iloc[0]["candidate"] == effect
+    assert d.verdict == "identified" and d.effect == effect, d.decision.reason
+    assert d.gap.shrink_pct > 15  # held-out RMSE against the measured force (includes the noise floor)
+    assert d.ranking[0].candidate == effect
     # the leader's parameters are determined away from their null values
     ident = d.identifiability[effect]
     first = next(iter(ident.values()))
-    assert abs(first["z_vs_null"]) > 3
+    assert abs(first.z_vs_null) > 3
 
 
 def test_where_names_the_speeds_of_a_speed_effect(strong):
     _, d = strong["hydrodynamic_lift"]
     where = d.where
-    assert where["sign"] in ("below", "mixed")
-    assert 7.5 in where["speeds_mm_s"]
-    assert where["variance_split"]["speed"] > 0.3
-    assert "7.5" in where["summary"]
+    assert where.sign in ("below", "mixed")
+    assert 7.5 in where.speeds_mm_s
+    assert where.variance_split.speed > 0.3
+    assert "7.5" in where.summary
 
 
 def test_drift_shows_without_contact(strong):
     _, d = strong["sensor_drift"]
-    assert d.where["before_contact"] or "before" in d.where["phases"] or "dwell" in d.where["phases"]
+    assert d.where.before_contact or "before" in d.where.phases or "dwell" in d.where.phases
 
 
 # --------------------------------------------------------------------------- the paper's case
@@ -120,11 +111,11 @@ def paper():
 def test_paper_case_explains_the_drop(paper):
     truth, d = paper
     assert d.verdict == "identified" and d.effect == "hydrodynamic_lift"
-    drops = {r["speed_mm_s"]: r for r in d.peak_drop["by_speed"]}
-    assert drops[7.5]["measured_pct"] == pytest.approx(43, abs=4)
-    assert drops[3.0]["measured_pct"] == pytest.approx(24, abs=4)
-    assert abs(drops[7.5]["base_pct"]) < 3  # the paper's model alone barely drops
-    assert 0.8 < d.peak_drop["explained_frac_fastest"] < 1.25
+    drops = {r.speed_mm_s: r for r in d.peak_drop.by_speed}
+    assert drops[7.5].measured_pct == pytest.approx(43, abs=4)
+    assert drops[3.0].measured_pct == pytest.approx(24, abs=4)
+    assert abs(drops[7.5].base_pct) < 3  # the paper's model alone barely drops
+    assert 0.8 < d.peak_drop.explained_frac_fastest < 1.25
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -144,21 +135,21 @@ def test_the_papers_protocol_tells_lift_from_lag_one_way_only(seed):
     drop = peak_force_drop(synced).set_index("speed_mm_s")["change_pct"]
     assert -48 < drop[7.5] < -38 and -20 < drop[3.0] < -12
     d = diagnose(synced, FAST)
-    assert d.verdict == "ambiguous" and d.decision["tied"][:2] == ["sensor_lag", "hydrodynamic_lift"]
-    assert d.experiments[0]["experiment"] == "retraction"
+    assert d.verdict == "ambiguous" and d.decision.tied[:2] == ("sensor_lag", "hydrodynamic_lift")
+    assert d.experiments[0].experiment == "retraction"
 
 
 def test_paper_case_says_how_to_split_lift_from_lag(paper):
     _, d = paper
     # lag is the runner-up (or tied); the experiments name what each predicts
-    ranked = list(d.ranking["candidate"])
+    ranked = [r.candidate for r in d.ranking]
     assert ranked.index("sensor_lag") <= 2
     assert d.experiments, "an experiment to confirm lift against the runner-up is proposed"
     best = d.experiments[0]
-    assert best["recommended"] and set(best["predictions"]) >= {"hydrodynamic_lift", "sensor_lag"}
-    for pred in best["predictions"].values():
-        assert pred["words"]
-    names = {e["experiment"] for e in d.experiments}
+    assert best.recommended and set(best.predictions) >= {"hydrodynamic_lift", "sensor_lag"}
+    for pred in best.predictions.values():
+        assert pred.words
+    names = {e.experiment for e in d.experiments}
     assert {"dwell", "retraction", "viscosity"} <= names
 
 
@@ -170,7 +161,7 @@ def test_paper_sized_lag_is_not_called_lift():
     synced, _ = _data("sensor_lag", 5, effect_params=dict(pole_time_s=0.15, dead_time_s=0.03), dwell_s=0.0, pre_s=0.0)
     d = diagnose(synced, FAST)
     assert d.verdict == "ambiguous" and d.effect is None
-    assert d.decision["tied"][:2] == ["sensor_lag", "hydrodynamic_lift"] and d.decision["leader"] == "sensor_lag"
+    assert d.decision.tied[:2] == ("sensor_lag", "hydrodynamic_lift") and d.decision.leader == "sensor_lag"
 
 
 # --------------------------------------------------------------------------- kernels vs library
@@ -373,13 +364,13 @@ def test_splitting_experiments_rank_by_the_fixed_predictions(monkeypatch):
     fits = {e: SimpleNamespace(name=e, candidate=SimpleNamespace(effect=e)) for e in table}
     model = {e: None for e in table}
     rows = dx.splitting_experiments(None, fits, ["a", "b", "c"], model)
-    by = {r["experiment"]: r for r in rows}
-    assert by["retraction"]["min_difference_g"] == pytest.approx(0.4) and by["retraction"]["complete"]
-    assert by["viscosity"]["min_difference_g"] == pytest.approx(0.9) and not by["viscosity"]["complete"]
-    assert by["baseline"]["min_difference_g"] == 0.0 and by["baseline"]["complete"]
+    by = {r.experiment: r for r in rows}
+    assert by["retraction"].min_difference_g == pytest.approx(0.4) and by["retraction"].complete
+    assert by["viscosity"].min_difference_g == pytest.approx(0.9) and not by["viscosity"].complete
+    assert by["baseline"].min_difference_g == 0.0 and by["baseline"].complete
     # viscosity ranks at 0.45 (half of 0.9, incomplete), above retraction's 0.4
-    assert [r["experiment"] for r in rows][:2] == ["viscosity", "retraction"] and rows[0]["recommended"]
+    assert [r.experiment for r in rows][:2] == ["viscosity", "retraction"] and rows[0].recommended
     # with "a" and "c" only, the dwell and the viscosity have one fixed prediction: no difference
-    by = {r["experiment"]: r for r in dx.splitting_experiments(None, fits, ["a", "c"], model)}
-    assert by["dwell"]["min_difference_g"] is None and not by["dwell"]["complete"]
-    assert by["retraction"]["min_difference_g"] == pytest.approx(1.0) and by["retraction"]["recommended"]
+    by = {r.experiment: r for r in dx.splitting_experiments(None, fits, ["a", "c"], model)}
+    assert by["dwell"].min_difference_g is None and not by["dwell"].complete
+    assert by["retraction"].min_difference_g == pytest.approx(1.0) and by["retraction"].recommended

@@ -18,7 +18,8 @@ Everything else is importable from the subpackages.
 
 from tympani.pipeline.extract.batch import ExtractConfig, extract_batch, extract_video, read_manifest
 from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds
-from tympani.pipeline.diagnosis.core import DiagnosisConfig, diagnose
+from tympani.pipeline.diagnosis.analysis import diagnose
+from tympani.pipeline.diagnosis.config import DiagnosisConfig
 from tympani.pipeline.model.identify import fit_synced
 from tympani.pipeline.run import RunConfig, run_pipeline
 from tympani.pipeline.force.sync import SyncConfig, sync_manifest, sync_trial

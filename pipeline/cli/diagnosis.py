@@ -58,7 +58,9 @@ def configure_diagnose(p: argparse.ArgumentParser) -> None:
 
 def run_diagnose(args: argparse.Namespace) -> int:
     """Run ``tympani diagnose``."""
-    from tympani.pipeline.diagnosis.core import DiagnosisConfig, diagnose, read_synced
+    from tympani.pipeline.diagnosis.analysis import diagnose
+    from tympani.pipeline.diagnosis.config import DiagnosisConfig
+    from tympani.pipeline.model.identify import read_synced
     from tympani.pipeline.diagnosis.report import summary_line, write_diagnosis
 
     table = read_synced(args.synced)
@@ -66,10 +68,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     diag = diagnose(table, config, source=args.synced)
     write_diagnosis(diag, args.out, source=args.synced, figures=not args.no_figures)
     print(summary_line(diag))
-    print(f"where: {diag.where['summary']}")
+    print(f"where: {diag.where.summary}")
     if diag.verdict == "ambiguous" and diag.experiments:
         best = diag.experiments[0]
-        print(f"to split {', '.join(diag.decision['tied'])}: {best['experiment']} ({best['protocol']})")
+        print(f"to split {', '.join(diag.decision.tied)}: {best.experiment} ({best.protocol})")
     print(f"-> {args.out}/diagnosis.json, diagnosis.md")
     return 0
 

@@ -22,7 +22,7 @@
    on a ``long_factor`` times longer one (the same frames looped), each in a fresh Python process
    (a peak is per process; see :func:`pipeline.devtools.memory.peak_rss_mib`), so that streaming shows as two nearly
    equal figures;
-4. **diagnosis time** of :func:`pipeline.diagnosis.core.diagnose` on a synthetic 5-speed ×
+4. **diagnosis time** of :func:`pipeline.diagnosis.analysis.diagnose` on a synthetic 5-speed ×
    ``trials`` dataset (:func:`pipeline.synthetic.family_a.synthetic_dataset`, no video);
 5. **batch throughput** of :func:`pipeline.extract.batch.extract_batch` on ``batch_videos`` copies of
    the video with 1, 2 and 4 worker processes;
@@ -395,7 +395,8 @@ def _diagnosis(config: BenchConfig) -> dict:
     """Section 4: time to generate and diagnose a synthetic speeds × trials dataset."""
     import numpy as np
 
-    from tympani.pipeline.diagnosis.core import DiagnosisConfig, diagnose
+    from tympani.pipeline.diagnosis.analysis import diagnose
+    from tympani.pipeline.diagnosis.config import DiagnosisConfig
     from tympani.pipeline.synthetic.family_a import synthetic_dataset
 
     t0 = time.perf_counter()

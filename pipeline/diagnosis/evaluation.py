@@ -2,7 +2,7 @@
 
 Each case draws a hidden effect (or none), its strength and a noise level, generates an
 experiment with :func:`pipeline.synthetic.family_a.synthetic_dataset` (hidden forms unlike the library's,
-see that module), runs :func:`pipeline.diagnosis.core.diagnose` on the synced table alone and scores
+see that module), runs :func:`pipeline.diagnosis.analysis.diagnose` on the synced table alone and scores
 the verdict against the truth. Cases are balanced over the effects (case ``i`` gets effect
 ``i mod (1 + number of effects)``, ``None`` first); everything else is drawn from
 ``numpy.random.SeedSequence(seed)`` spawned per case, so a case is reproducible on its own and the
@@ -32,13 +32,16 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
 
-from tympani.pipeline.diagnosis.core import DiagnosisConfig, candidates, diagnose, fit_candidate, trial_sse
+from tympani.pipeline.diagnosis.analysis import diagnose
+from tympani.pipeline.diagnosis.candidates import candidates, fit_candidate
+from tympani.pipeline.diagnosis.config import DiagnosisConfig
+from tympani.pipeline.diagnosis.evidence import trial_sse
 from tympani.pipeline.synthetic.family_a import NoiseConfig, synthetic_dataset
 from tympani.pipeline.synthetic.family_b import generate
 
@@ -181,7 +184,8 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
     truth_rows = clean_all[idx]
     base_rows = base_all[idx]
     resid_gap = residual_gap(d.data, truth_rows, base_rows, config.diagnosis) if spec.effect else 0.0
-    leader = d.decision["effect"] or d.decision["leader"]
+    dec = d.decision
+    leader = dec.effect or dec.leader
 
     def true_rmse(name: str) -> float:
         return float(np.sqrt(np.mean((d.heldout[name] - truth_rows) ** 2)))
@@ -190,17 +194,16 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
     truth_effect = spec.effect
     found = d.effect
     out.update(
-        verdict=d.verdict, effect_found=found, tied=",".join(d.decision["tied"]), leader=d.decision["leader"],
-        reference=d.decision["reference"],
+        verdict=d.verdict, effect_found=found, tied=",".join(dec.tied), leader=dec.leader, reference=dec.reference,
         correct=bool((truth_effect is None and d.verdict == "no_gap") or (truth_effect is not None and found == truth_effect)),
         confident_wrong=bool(d.verdict == "identified" and found != truth_effect),
-        ambiguous_includes_truth=bool(d.verdict == "ambiguous" and truth_effect in d.decision["tied"]),
-        ambiguous_top2_truth=bool(d.verdict == "ambiguous" and truth_effect in d.decision["tied"][:2]),
+        ambiguous_includes_truth=bool(d.verdict == "ambiguous" and truth_effect in dec.tied),
+        ambiguous_top2_truth=bool(d.verdict == "ambiguous" and truth_effect in dec.tied[:2]),
         residual_gap_g=resid_gap, residual_gap_to_noise=resid_gap / out["noise_rms_g"] if out["noise_rms_g"] > 0 else 0.0,
-        shrink_pct=float(d.gap["shrink_pct"]), true_shrink_pct=float(100 * (1 - re_ / rb)) if rb > 0 else float("nan"),
-        true_rmse_base_g=rb, true_rmse_effect_g=re_, gain_lo=float(d.decision["gain_lo"][d.decision["leader"]]),
-        lof_p=float(max(d.lof["base"]["p_value"], d.lof["control"]["p_value"])),
-        peak_explained=float(d.peak_drop["explained_frac_fastest"]), diagnose_s=float(d.timing_s), error="",
+        shrink_pct=float(d.gap.shrink_pct), true_shrink_pct=float(100 * (1 - re_ / rb)) if rb > 0 else float("nan"),
+        true_rmse_base_g=rb, true_rmse_effect_g=re_, gain_lo=float(dec.gain_lo[dec.leader]),
+        lof_p=float(max(d.lof.base.p_value, d.lof.control.p_value)),
+        peak_explained=float(d.peak_drop.explained_frac_fastest), diagnose_s=float(d.timing_s), error="",
     )
     if config.keep_errors:  # per-trial held-out errors, to study decision rules afterwards
         names = list(d.fits)
@@ -208,9 +211,10 @@ def run_case(spec: CaseSpec, config: EvalConfig = EvalConfig()) -> dict:
         out["_sse"] = np.column_stack([trial_sse(d.data, d.data.y - d.heldout[nm])[0] for nm in names])
         out["_n"] = trial_sse(d.data, d.data.y)[1]
         out["_trial_speed"] = d.data.trial_speed
-        out["_lof"] = {k: (v["p_value"], v.get("level", v)["p_value"], v.get("shape", v)["p_value"])
-                       for k, v in d.lof.items()}
-        out["_systematic"] = dict(d.decision["systematic_g"])
+        tests = {f.name: getattr(d.lof, f.name) for f in fields(d.lof)}
+        out["_lof"] = {k: (v.p_value, getattr(v, "level", v).p_value, getattr(v, "shape", v).p_value)
+                       for k, v in tests.items()}
+        out["_systematic"] = dict(dec.systematic_g)
         out["_mse"] = {nm: float(np.sum(out["_sse"][:, i]) / np.sum(out["_n"])) for i, nm in enumerate(names)}
     return out
 
@@ -278,7 +282,7 @@ def residual_gap(ds, clean_g: np.ndarray, base_g: np.ndarray, config: DiagnosisC
 
     Parameters
     ----------
-    ds : pipeline.diagnosis.core.Prepared
+    ds : pipeline.diagnosis.prepare.Prepared
         The rows diagnosed.
     clean_g, base_g : ndarray
         The generator's noiseless force with and without the effect (g) on those rows.

@@ -4,7 +4,7 @@ For each candidate experiment — a **dwell** after the stop, a **retraction** r
 insertion, a second lubricant **viscosity**, a **baseline** log before the robot moves — every
 fitted effect predicts a signed change of the sensed force (g) relative to what the base model
 predicts, at the fastest speed of the data, computed from that effect's fitted parameters
-(:mod:`pipeline.diagnosis.core`). The experiment recommended for a set of tied effects is the one whose
+(:mod:`pipeline.diagnosis.candidates`). The experiment recommended for a set of tied effects is the one whose
 predictions differ most between every pair of them (largest smallest pairwise difference).
 
 The predictions are first-order consequences of the library's functional forms
@@ -33,11 +33,12 @@ The predictions are first-order consequences of the library's functional forms
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["EXPERIMENTS", "effect_predictions", "splitting_experiments"]
+__all__ = ["EXPERIMENTS", "Experiment", "ExperimentPrediction", "effect_predictions", "splitting_experiments"]
 
 #: Candidate experiments: name -> protocol, in order of preference when they split equally well.
 EXPERIMENTS: dict[str, str] = {
@@ -47,6 +48,57 @@ EXPERIMENTS: dict[str, str] = {
     "dwell": "hold the array still for 3 s after the stop at the fastest speed, logging the force",
     "baseline": "log the force for 5 s before the robot moves (array in the lubricant, no contact)",
 }
+
+
+
+@dataclass(frozen=True)
+class ExperimentPrediction:
+    """What one fitted effect predicts for one experiment.
+
+    Attributes
+    ----------
+    change_g : float or None
+        Signed change of the sensed force (g) relative to the base model; None when the effect's
+        form does not fix it.
+    words : str
+        The prediction in words.
+    """
+
+    change_g: float | None
+    words: str
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """An experiment and how well it splits a set of effects (:func:`splitting_experiments`).
+
+    Attributes
+    ----------
+    experiment : str
+        Its name (a key of :data:`EXPERIMENTS`).
+    protocol : str
+        What to do.
+    effects : tuple of str
+        The effects to split.
+    predictions : dict
+        Effect -> :class:`ExperimentPrediction`.
+    min_difference_g : float or None
+        Smallest difference (g) between two effects' predicted changes, among the effects whose
+        prediction is fixed; None when fewer than two are.
+    complete : bool
+        Every effect's prediction is fixed.
+    recommended : bool
+        The best-ranked experiment.
+    """
+
+    experiment: str
+    protocol: str
+    effects: tuple[str, ...]
+    predictions: dict[str, ExperimentPrediction]
+    min_difference_g: float | None
+    complete: bool
+    recommended: bool
+
 
 _DWELL_S = 3.0
 _BASELINE_S = 5.0
@@ -67,13 +119,13 @@ def effect_predictions(ds, fit, model_g: np.ndarray) -> dict:
 
     Parameters
     ----------
-    ds : pipeline.diagnosis.core.Prepared
+    ds : pipeline.diagnosis.prepare.Prepared
         The data (the fastest speed's trial ends are used).
-    fit : pipeline.diagnosis.core.CandidateFit
+    fit : pipeline.diagnosis.candidates.CandidateFit
         A fit of base + one effect to all speeds.
     model_g : ndarray, shape (n,)
         The fit's model force (g) on every row of ``ds``, with its trial gains
-        (:func:`pipeline.diagnosis.core.predict`).
+        (:func:`pipeline.diagnosis.candidates.predict`).
 
     Returns
     -------
@@ -163,46 +215,42 @@ def effect_predictions(ds, fit, model_g: np.ndarray) -> dict:
     return out
 
 
-def splitting_experiments(ds, fits: Mapping, focus: Sequence[str], model_g: Mapping[str, np.ndarray]) -> list[dict]:
+def splitting_experiments(ds, fits: Mapping, focus: Sequence[str],
+                          model_g: Mapping[str, np.ndarray]) -> tuple[Experiment, ...]:
     """Experiments ranked by how well they split the effects in ``focus``.
 
     Parameters
     ----------
-    ds : pipeline.diagnosis.core.Prepared
+    ds : pipeline.diagnosis.prepare.Prepared
     fits : mapping
         Candidate name -> CandidateFit (fits to all speeds).
     focus : sequence of str
         Effects to split (the tied ones, or the leader and its runner-up).
     model_g : mapping
         Candidate name -> its fit's model force (g) per row, with the trial gains
-        (:func:`pipeline.diagnosis.core.predict`).
+        (:func:`pipeline.diagnosis.candidates.predict`).
 
     Returns
     -------
-    list of dict
-        One per experiment, best first: ``experiment``, ``protocol``, ``effects``,
-        ``predictions`` ({effect: {change_g, words}}), ``min_difference_g`` (smallest difference
-        between two effects' predicted changes, among the effects whose prediction is fixed; None
-        when fewer than two are), ``complete`` (every effect's prediction is fixed; an incomplete
-        experiment ranks as if its difference were half as large), ``recommended`` (True for the
-        first).
+    tuple of Experiment
+        One per experiment, best first (an incomplete experiment ranks as if its difference were
+        half as large); empty for fewer than two effects.
     """
     focus = [e for e in dict.fromkeys(focus) if e in fits and fits[e].candidate.effect is not None]
     if len(focus) < 2:
-        return []
+        return ()
     preds = {e: effect_predictions(ds, fits[e], model_g[e]) for e in focus}
-    rows: list[dict[str, Any]] = []
+    ranked = []
     for order, (exp, protocol) in enumerate(EXPERIMENTS.items()):
         changes = [preds[e][exp]["change_g"] for e in focus]
         known = [c for c in changes if c is not None]
         diffs = [abs(a - b) for i, a in enumerate(known) for b in known[i + 1:]]
         min_diff = min(diffs) if diffs else None
-        rows.append(dict(experiment=exp, protocol=protocol, effects=list(focus),
-                         predictions={e: {"change_g": preds[e][exp]["change_g"], "words": preds[e][exp]["words"]}
-                                      for e in focus},
-                         min_difference_g=min_diff, complete=len(known) == len(changes), _order=order))
-    rows.sort(key=lambda r: (-(r["min_difference_g"] or 0.0) * (1.0 if r["complete"] else 0.5), r["_order"]))
-    for i, r in enumerate(rows):
-        r.pop("_order")
-        r["recommended"] = i == 0
-    return rows
+        complete = len(known) == len(changes)
+        predictions = {e: ExperimentPrediction(change_g=preds[e][exp]["change_g"], words=preds[e][exp]["words"])
+                       for e in focus}
+        ranked.append(((-(min_diff or 0.0) * (1.0 if complete else 0.5), order),
+                       dict(experiment=exp, protocol=protocol, effects=tuple(focus), predictions=predictions,
+                            min_difference_g=min_diff, complete=complete)))
+    ranked.sort(key=lambda item: item[0])
+    return tuple(Experiment(**fields, recommended=i == 0) for i, (_, fields) in enumerate(ranked))

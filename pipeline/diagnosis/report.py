@@ -2,7 +2,7 @@
 
 :func:`write_diagnosis` writes, in the output folder::
 
-    diagnosis.json              verdict, effect, ranking, gap, ... (pipeline.diagnosis.core.diagnosis_to_json)
+    diagnosis.json              verdict, effect, ranking, gap, ... (pipeline.diagnosis.analysis.diagnosis_to_json)
     diagnosis.md                the report in words, tables and figures
     diagnosis_rows.csv          the subsampled rows with the base, control and leading effect's
                                 held-out and in-sample predictions (g)
@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from tympani.pipeline.diagnosis.core import PHASES, Diagnosis, diagnosis_to_json
+from tympani.pipeline.diagnosis.analysis import Diagnosis, diagnosis_to_json
+from tympani.pipeline.diagnosis.config import PHASES
+from tympani.pipeline.diagnosis.kernels import kernel
 
 __all__ = ["write_diagnosis", "report_markdown", "summary_line"]
 
@@ -35,11 +38,11 @@ def summary_line(diag: Diagnosis) -> str:
     if diag.verdict == "identified":
         head = f"identified {diag.effect}"
     elif diag.verdict == "ambiguous":
-        head = f"ambiguous between {', '.join(diag.decision['tied'])}"
+        head = f"ambiguous between {', '.join(diag.decision.tied)}"
     else:
         head = "no_gap"
-    return (f"diagnose: {head}; held-out RMSE base {g['rmse_base_g']:.3g} g -> with {g['effect']} "
-            f"{g['rmse_with_effect_g']:.3g} g ({g['shrink_pct']:+.0f} %); {diag.timing_s:.1f} s")
+    return (f"diagnose: {head}; held-out RMSE base {g.rmse_base_g:.3g} g -> with {g.effect} "
+            f"{g.rmse_with_effect_g:.3g} g ({g.shrink_pct:+.0f} %); {diag.timing_s:.1f} s")
 
 
 def _fmt(v, digits: int = 3) -> str:
@@ -69,23 +72,22 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
         lines += [f"Input: `{source}` — {len(ds.speeds)} speeds ({', '.join(f'{s:g}' for s in ds.speeds)} mm/s), "
                   f"{ds.n_trials} trials, {ds.n} rows fitted of {ds.n_rows_in} usable.", ""]
     verdict = {"identified": f"**identified: `{diag.effect}`**",
-               "ambiguous": f"**ambiguous** between {', '.join(f'`{e}`' for e in dec['tied'])}",
+               "ambiguous": f"**ambiguous** between {', '.join(f'`{e}`' for e in dec.tied)}",
                "no_gap": "**no gap**"}[diag.verdict]
-    lines += [f"Verdict: {verdict}: {dec['reason']}.", ""]
+    lines += [f"Verdict: {verdict}: {dec.reason}.", ""]
 
     lines += ["## Is there a gap?", ""]
-    ref = dec["reference"]
-    for name in ("base", "control"):
-        lof = diag.lof[name]
+    ref = dec.reference
+    for name, lof in (("base", diag.lof.base), ("control", diag.lof.control)):
         lines.append(f"- Lack of fit of the {name} model's held-out predictions against the scatter between repeats: "
-                     f"p = {_fmt(lof['p_value'])} (level {lof['level']['p_value']:.3g}, shape {lof['shape']['p_value']:.3g}; "
-                     f"Holm over cells, Bonferroni over the two; significant below {lof['alpha']:g}); systematic misfit "
-                     f"{lof['systematic_rms_g']:.3g} g RMS against a repeat scatter of {lof['repeat_scatter_g']:.3g} g "
+                     f"p = {_fmt(lof.p_value)} (level {lof.level.p_value:.3g}, shape {lof.shape.p_value:.3g}; "
+                     f"Holm over cells, Bonferroni over the two; significant below {lof.alpha:g}); systematic misfit "
+                     f"{lof.systematic_rms_g:.3g} g RMS against a repeat scatter of {lof.repeat_scatter_g:.3g} g "
                      f"per cell mean.")
-    fails = diag.lof["base"]["significant"]
+    fails = diag.lof.base.significant
     lines += ["", "A gap needs the base model to fail: " + ("it does." if fails else "it fits within the scatter."), ""]
 
-    lines += ["## Where is it?", "", diag.where["summary"] + ".", ""]
+    lines += ["## Where is it?", "", diag.where.summary + ".", ""]
     if "heatmap" in figures:
         lines += [f"![held-out residual of the base model]({figures['heatmap']})", ""]
     if "phase" in figures:
@@ -97,11 +99,11 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
               "MSE removed (lower bound: one-sided 2.5 % bootstrap over trials).", "",
               "| candidate | held-out RMSE (g) | 95 % CI | extrapolation (g) | gain | gain lower bound | ΔBIC | ΔAICc |",
               "|---|---|---|---|---|---|---|---|"]
-    for _, row in diag.ranking.iterrows():
-        nm = row["candidate"]
-        lines.append(f"| {nm} | {row['heldout_rmse_g']:.4g} | {row['heldout_rmse_lo_g']:.3g}–{row['heldout_rmse_hi_g']:.3g} | "
-                     f"{row['extrap_rmse_g']:.4g} | {_fmt(dec['gain'].get(nm), 2)} | {_fmt(dec['gain_lo'].get(nm), 2)} | "
-                     f"{row['delta_bic']:.1f} | {row['delta_aicc']:.1f} |")
+    for row in diag.ranking:
+        nm = row.candidate
+        lines.append(f"| {nm} | {row.heldout_rmse_g:.4g} | {row.heldout_rmse_lo_g:.3g}–{row.heldout_rmse_hi_g:.3g} | "
+                     f"{row.extrap_rmse_g:.4g} | {_fmt(dec.gain.get(nm), 2)} | {_fmt(dec.gain_lo.get(nm), 2)} | "
+                     f"{row.delta_bic:.1f} | {row.delta_aicc:.1f} |")
     lines.append("")
     if "ranking" in figures:
         lines += [f"![ranking]({figures['ranking']})", ""]
@@ -111,33 +113,33 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
               "|---|---|---|---|---|---|---|---|"]
     for eff, params in diag.identifiability.items():
         for pname, info in params.items():
-            lines.append(f"| {eff} | {pname} | {_fmt(info['value'], 4)} | {_fmt(info['stderr'], 2)} | "
-                         f"{_fmt(info['z_vs_null'], 2)} | {_fmt(info['fold_min'], 3)}…{_fmt(info['fold_max'], 3)} | "
-                         f"{info['most_correlated_with'] or '–'} ({_fmt(info['max_abs_corr'], 2)}) | {info['assessment']} |")
+            lines.append(f"| {eff} | {pname} | {_fmt(info.value, 4)} | {_fmt(info.stderr, 2)} | "
+                         f"{_fmt(info.z_vs_null, 2)} | {_fmt(info.fold_min, 3)}…{_fmt(info.fold_max, 3)} | "
+                         f"{info.most_correlated_with or '–'} ({_fmt(info.max_abs_corr, 2)}) | {info.assessment} |")
     lines.append("")
 
     lines += ["## How much?", "",
-              f"Held-out RMSE base {g['rmse_base_g']:.4g} g (95 % CI {g['rmse_base_ci95_g'][0]:.3g}–{g['rmse_base_ci95_g'][1]:.3g}) "
-              f"-> base + {g['effect']} {g['rmse_with_effect_g']:.4g} g "
-              f"({g['rmse_with_effect_ci95_g'][0]:.3g}–{g['rmse_with_effect_ci95_g'][1]:.3g}): shrinks by {g['shrink_pct']:.1f} % "
-              f"(95 % CI {g['shrink_ci95_pct'][0]:.1f}–{g['shrink_ci95_pct'][1]:.1f} %); control {g['rmse_control_g']:.4g} g. "
-              f"Systematic part (cell means over repeats, noise-corrected): {g['systematic_base_g']:.3g} g -> "
-              f"{g['systematic_with_effect_g']:.3g} g.", "",
+              f"Held-out RMSE base {g.rmse_base_g:.4g} g (95 % CI {g.rmse_base_ci95_g[0]:.3g}–{g.rmse_base_ci95_g[1]:.3g}) "
+              f"-> base + {g.effect} {g.rmse_with_effect_g:.4g} g "
+              f"({g.rmse_with_effect_ci95_g[0]:.3g}–{g.rmse_with_effect_ci95_g[1]:.3g}): shrinks by {g.shrink_pct:.1f} % "
+              f"(95 % CI {g.shrink_ci95_pct[0]:.1f}–{g.shrink_ci95_pct[1]:.1f} %); control {g.rmse_control_g:.4g} g. "
+              f"Systematic part (cell means over repeats, noise-corrected): {g.systematic_base_g:.3g} g -> "
+              f"{g.systematic_with_effect_g:.3g} g.", "",
               "| speed (mm/s) | trials | base (g) | control (g) | with effect (g) | shrink % | 95 % CI | bias base (g) | bias with effect (g) |",
               "|---|---|---|---|---|---|---|---|---|"]
-    for r in g["by_speed"]:
-        lines.append(f"| {r['speed_mm_s']:g} | {r['n_trials']} | {r['rmse_base_g']:.4g} | {r['rmse_control_g']:.4g} | "
-                     f"{r['rmse_with_effect_g']:.4g} | {r['shrink_pct']:.1f} | {r['shrink_ci95_pct'][0]:.0f}…{r['shrink_ci95_pct'][1]:.0f} | "
-                     f"{r['bias_base_g']:+.3g} | {r['bias_with_effect_g']:+.3g} |")
+    for r in g.by_speed:
+        lines.append(f"| {r.speed_mm_s:g} | {r.n_trials} | {r.rmse_base_g:.4g} | {r.rmse_control_g:.4g} | "
+                     f"{r.rmse_with_effect_g:.4g} | {r.shrink_pct:.1f} | {r.shrink_ci95_pct[0]:.0f}…{r.shrink_ci95_pct[1]:.0f} | "
+                     f"{r.bias_base_g:+.3g} | {r.bias_with_effect_g:+.3g} |")
     lines.append("")
     pdrop = diag.peak_drop
-    lines += [f"Paper-style peak-force change vs {pdrop['reference_speed_mm_s']:g} mm/s (drop = 1 − peak(v)/peak(slowest)):", "",
+    lines += [f"Paper-style peak-force change vs {pdrop.reference_speed_mm_s:g} mm/s (drop = 1 − peak(v)/peak(slowest)):", "",
               "| speed (mm/s) | measured | base model | base + effect | base + effect (held out) | share explained |",
               "|---|---|---|---|---|---|"]
-    for r in pdrop["by_speed"]:
-        lines.append(f"| {r['speed_mm_s']:g} | {-r['measured_pct']:+.1f} % | {-r['base_pct']:+.1f} % | "
-                     f"{-r['with_effect_pct']:+.1f} % | {-r['with_effect_heldout_pct']:+.1f} % | "
-                     f"{_fmt(100 * r['explained_frac'], 3)} % |")
+    for p in pdrop.by_speed:
+        lines.append(f"| {p.speed_mm_s:g} | {-p.measured_pct:+.1f} % | {-p.base_pct:+.1f} % | "
+                     f"{-p.with_effect_pct:+.1f} % | {-p.with_effect_heldout_pct:+.1f} % | "
+                     f"{_fmt(100 * p.explained_frac, 3)} % |")
     lines.append("")
     if "force" in figures:
         lines += [f"![force vs theta_con]({figures['force']})", ""]
@@ -147,17 +149,14 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
                  else "## Experiments that would confirm it against the runner-up")
         lines += [title, ""]
         for exp in diag.experiments:
-            star = " (recommended)" if exp["recommended"] else ""
-            diff = exp["min_difference_g"]
-            lines.append(f"- **{exp['experiment']}**{star}: {exp['protocol']}. Smallest difference between the "
-                         f"predictions: {_fmt(diff)} g.")
-            for eff, pred in exp["predictions"].items():
-                lines.append(f"  - `{eff}`: {pred['words']}.")
+            star = " (recommended)" if exp.recommended else ""
+            lines.append(f"- **{exp.experiment}**{star}: {exp.protocol}. Smallest difference between the "
+                         f"predictions: {_fmt(exp.min_difference_g)} g.")
+            for eff, pred in exp.predictions.items():
+                lines.append(f"  - `{eff}`: {pred.words}.")
         lines.append("")
     if ds.notes:
         lines += ["## Notes on the data", ""] + [f"- {n}" for n in ds.notes] + [""]
-    from tympani.pipeline.diagnosis.core import kernel
-
     lines += ["## Candidate forms", "", "| candidate | form |", "|---|---|",
               "| base | the paper's force model (Eqs. 2-7) with the nominal friction law, pressures linear in "
               "theta_con, a per-trial gain (mean per speed within ±2 sd/sqrt(n) of 1) |",
@@ -173,7 +172,7 @@ def report_markdown(diag: Diagnosis, figures: dict[str, str], source: str | None
               f"{100 * diag.config.min_gain:.0f} % of the held-out MSE of base and control, the runner-up must miss more "
               f"than {100 * diag.config.min_separation:.0f} % of the leader's gain (both at one-sided level "
               f"{diag.config.alpha:g} of a {diag.config.bootstrap}-draw bootstrap over trials), and the base model must "
-              f"fail the lack-of-fit test at {diag.config.lof_alpha:g}. See `pipeline/diagnosis/core.py`.", ""]
+              f"fail the lack-of-fit test at {diag.config.lof_alpha:g}. See `pipeline/diagnosis/decision.py`.", ""]
     return "\n".join(lines)
 
 
@@ -184,11 +183,11 @@ def _figures(diag: Diagnosis, out: Path) -> dict[str, str]:
     import matplotlib.pyplot as plt
 
     ds = diag.data
-    leader = diag.gap["effect"]
+    leader = diag.gap.effect
     figs: dict[str, str] = {}
 
     # heat map: base held-out residual, speed x theta_con (% of the model), significant cells marked
-    cells = pd.DataFrame(diag.where["cells_theta"])
+    cells = pd.DataFrame([asdict(c) for c in diag.where.cells_theta])
     if not cells.empty:
         cells["label"] = [("no contact" if hi <= 0 else f"{lo:.2f}–{hi:.2f}") for lo, hi in
                           zip(cells["theta_lo_rad"], cells["theta_hi_rad"])]
@@ -245,10 +244,10 @@ def _figures(diag: Diagnosis, out: Path) -> dict[str, str]:
     figs["force"] = "fig_force_vs_theta.png"
 
     # ranking
-    rk = diag.ranking
+    rk = pd.DataFrame([asdict(r) for r in diag.ranking])
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
     y = np.arange(len(rk))[::-1]
-    colours = ["tab:red" if c == diag.effect else "tab:orange" if c in diag.decision["tied"] else
+    colours = ["tab:red" if c == diag.effect else "tab:orange" if c in diag.decision.tied else
                "0.5" if c in ("base", "control") else "tab:blue" for c in rk["candidate"]]
     ax.barh(y, rk["heldout_rmse_g"], color=colours,
             xerr=[rk["heldout_rmse_g"] - rk["heldout_rmse_lo_g"], rk["heldout_rmse_hi_g"] - rk["heldout_rmse_g"]],
@@ -297,15 +296,13 @@ def write_diagnosis(diag: Diagnosis, out_dir: str | os.PathLike, *, source: str 
     figures : bool
         Draw the figures.
     """
-    from dataclasses import asdict
-
     from tympani.pipeline.io import atomic_write_csv, atomic_write_json, atomic_write_text, provenance
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = atomic_write_json(out / "diagnosis.json", diagnosis_to_json(diag, source))
     ds = diag.data
-    leader = diag.gap["effect"]
+    leader = diag.gap.effect
     rows = ds.rows[["trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con",
                     "v_inst_mm_s", "phase"]].copy()
     rows["phase"] = [PHASES[int(k)] for k in ds.phase_label]

@@ -2,7 +2,7 @@
 
 Each :class:`Effect` turns the base model's force into an augmented force with one or two
 parameters; all of them have a *null* value at which they change nothing, so "no effect" is
-always inside the search. The diagnosis (:mod:`pipeline.diagnosis.core`) fits base + effect and asks
+always inside the search. The diagnosis (:mod:`pipeline.diagnosis.analysis`) fits base + effect and asks
 which effect explains a sim-to-real gap on held-out speeds.
 
 An effect sees the data through an :class:`EffectContext` (per-row arrays built once per

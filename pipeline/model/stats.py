@@ -1,7 +1,7 @@
 """Small statistics shared by the fits: autocorrelation, effective sample size, covariances.
 
 Every fit of the pipeline (:mod:`pipeline.model.identify`, :mod:`pipeline.model.bounds`,
-:mod:`pipeline.diagnosis.core`) has rows that come in trials (one force curve each), in time order
+:mod:`pipeline.diagnosis.analysis`) has rows that come in trials (one force curve each), in time order
 within a trial. Samples along a curve are autocorrelated, trials are independent; the functions
 here turn that into standard errors and model-selection criteria.
 
