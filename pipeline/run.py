@@ -46,7 +46,7 @@ STAGES = ("extract", "sync", "fit", "bounds", "diagnose", "report")
 
 
 def _default_extract() -> Any:
-    from tympani.pipeline.extract.batch import ExtractConfig
+    from tympani.pipeline.extract.config import ExtractConfig
 
     return ExtractConfig()
 
@@ -87,7 +87,7 @@ class RunConfig:
         Redo every stage, even when its outputs are up to date.
     progress : bool
         Progress bars on stderr.
-    extract : pipeline.extract.batch.ExtractConfig
+    extract : pipeline.extract.config.ExtractConfig
     sync : pipeline.force.sync.SyncConfig
     fit : pipeline.model.identify.FitOptions
     bounds : pipeline.model.bounds.BoundsConfig
@@ -445,7 +445,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
     Parameters
     ----------
     manifest : DataFrame
-        From :func:`pipeline.extract.batch.read_manifest`.
+        From :func:`pipeline.extract.manifest.read_manifest`.
     out : Path
         Output folder (``angles/`` inside).
     extract : DataFrame
@@ -491,7 +491,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     Parameters
     ----------
     manifest : str or PathLike
-        Manifest CSV (:func:`pipeline.extract.batch.read_manifest`).
+        Manifest CSV (:func:`pipeline.extract.manifest.read_manifest`).
     out_dir : str or PathLike
         Output folder (created).
     cfg : RunConfig
@@ -511,7 +511,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     vision.errors.InputError
         The manifest itself is unusable (missing, bad header or value, a missing file).
     """
-    from tympani.pipeline.extract.batch import read_manifest
+    from tympani.pipeline.extract.manifest import read_manifest
     from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance
 
     t_start = time.perf_counter()

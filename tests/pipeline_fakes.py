@@ -1,8 +1,9 @@
 """Small stand-ins for registration and measurement, and tiny test videos.
 
 The batch/CLI tests check plumbing (streaming, re-registration, files, exit codes), not vision,
-so they replace ``tympani.vision.registration.register/check`` and ``tympani.vision.angles.measure_frame`` with
-fakes driven by simple image statistics:
+so they pass :data:`STEPS` (a :class:`~tympani.pipeline.extract.config.VisionSteps` of the fakes
+below, with no measurement plan and no batches) in place of the real registration and
+measurement. The fakes are driven by simple image statistics:
 
 - registration fails ("no phantom found") on a black first frame;
 - a frame whose top-left 8x8 block is white fails the registration check (camera bumped);
@@ -24,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.vision.geometry import CameraPose
 
 W, H = 64, 48
@@ -112,26 +114,18 @@ def fake_measure_frame(gray, registration, phantom, array, cfg):
 
 @dataclass(frozen=True)
 class FakeConfig:
-    """Stands in for MeasureConfig / RegistrationConfig when the real modules cannot be imported."""
+    """Stands in for MeasureConfig / RegistrationConfig (the fakes ignore their settings)."""
 
     name: str = "fake"
 
 
-def install(monkeypatch) -> None:
-    """Replace registration and measurement with the fakes."""
-    from tympani.vision import angles as ang, registration as reg
-
-    monkeypatch.setattr(reg, "register", fake_register, raising=False)
-    monkeypatch.setattr(reg, "check", fake_check, raising=False)
-    monkeypatch.setattr(reg, "RegistrationError", FakeRegistrationError, raising=False)
-    monkeypatch.setattr(reg, "Registration", FakeRegistration, raising=False)
-    monkeypatch.setattr(ang, "measure_frame", fake_measure_frame, raising=False)
-    monkeypatch.delattr(ang, "prepare_measurement", raising=False)
+#: The fakes as the extraction's vision steps (module-level functions: they pickle to workers).
+STEPS = VisionSteps(register=fake_register, check=fake_check, measure_frame=fake_measure_frame,
+                    prepare_measurement=None, measure_frames_batch=None, registration_error=FakeRegistrationError)
 
 
 def fake_config(**kwargs):
-    from tympani.pipeline.extract.batch import ExtractConfig
-
+    """An :class:`ExtractConfig` whose measurement and registration settings are placeholders."""
     return ExtractConfig(measure=FakeConfig("measure"), registration=FakeConfig("registration"), **kwargs)
 
 

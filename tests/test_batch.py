@@ -1,7 +1,7 @@
 """Video → angles plumbing: atomic files, provenance, extraction, batches, manifest, annotate.
 
-Registration and measurement are replaced by the fakes of ``pipeline_fakes`` so these tests
-check the plumbing only, and stay valid whatever the real vision code does.
+Registration and measurement are the fakes of ``pipeline_fakes`` (passed as ``steps=STEPS``) so
+these tests check the plumbing only, and stay valid whatever the real vision code does.
 """
 
 from __future__ import annotations
@@ -19,19 +19,12 @@ import pandas as pd
 import pytest
 
 import pipeline_fakes as fakes
+from pipeline_fakes import STEPS
 from tympani.pipeline.extract import batch
-from tympani.pipeline.extract.batch import (
-    ANGLE_COLUMNS,
-    ExtractConfig,
-    VideoItem,
-    extract_batch,
-    _window_medians,
-    extract_video,
-    flag_glitches,
-    output_paths,
-    process_video,
-    read_manifest,
-)
+from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
+from tympani.pipeline.extract.config import ExtractConfig
+from tympani.pipeline.extract.manifest import VideoItem, read_manifest
+from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -40,8 +33,8 @@ REGISTRATION_KEYS = {"centre_x_px", "centre_y_px", "rotation_rad", "px_per_mm", 
 
 
 @pytest.fixture
-def fake_vision(monkeypatch):
-    fakes.install(monkeypatch)
+def fake_vision():
+    """Settings for the fake steps."""
     return fakes.fake_config()
 
 
@@ -146,7 +139,7 @@ def test_extract_config_defaults_and_validation():
 
 def test_extract_video_rows_columns_and_failed_frames(tmp_path, fake_vision):
     video = fakes.write_video(tmp_path / "t1.mp4", n=12, dark={3, 4})
-    table, reg = extract_video(video, fake_vision)
+    table, reg = extract_video(video, fake_vision, steps=STEPS)
     assert list(table.columns[: len(ANGLE_COLUMNS)]) == list(ANGLE_COLUMNS)
     assert "depth_mm" in table.columns and table.columns[-1] == "reg_epoch"
     assert table["frame"].tolist() == list(range(12)) and (table["trial"] == "t1").all()
@@ -160,14 +153,13 @@ def test_extract_video_rows_columns_and_failed_frames(tmp_path, fake_vision):
 
 
 def test_short_video_registers_on_what_it_has(tmp_path, fake_vision):
-    table, reg = extract_video(fakes.write_video(tmp_path / "s.mp4", n=3), fake_vision)
+    table, reg = extract_video(fakes.write_video(tmp_path / "s.mp4", n=3), fake_vision, steps=STEPS)
     assert len(table) == 3 and reg.n_frames == 3
 
 
-def test_camera_bump_triggers_re_registration(tmp_path, monkeypatch):
-    fakes.install(monkeypatch)
+def test_camera_bump_triggers_re_registration(tmp_path):
     cfg = fakes.fake_config(recheck_every=5, register_frames=2)
-    table, reg = extract_video(fakes.write_video(tmp_path / "b.mp4", n=24, bumped_from=12), cfg)
+    table, reg = extract_video(fakes.write_video(tmp_path / "b.mp4", n=24, bumped_from=12), cfg, steps=STEPS)
     regs = table.attrs["registrations"]
     assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
     assert regs[1]["check_residual_px"] == 50.0 and regs[1]["threshold_px"] == pytest.approx(1.6)
@@ -185,15 +177,14 @@ def _rows(table, frames) -> list[tuple[int, bool, int]]:
     return [(int(f), bool(ok), int(e)) for f, ok, e in zip(sub["frame"], sub["ok"], sub["reg_epoch"])]
 
 
-def test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits(tmp_path, monkeypatch):
+def test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fits(tmp_path):
     """Bumped at 7 into a view that cannot be registered (7-9), registrable again from 10. The
     check at 9 fails and registering there fails: the registration is lost, frames are not
     measured with the old pose, and the next try (frame 11) registers. Going back, 7-9 fit
     neither registration (not ok) and 10 fits the new one."""
-    fakes.install(monkeypatch)
     cfg = fakes.fake_config(recheck_every=3, register_frames=1)
     video = fakes.write_video(tmp_path / "l.mp4", n=18, bumped_from=7, blocked={7, 8, 9})
-    table, _ = extract_video(video, cfg)
+    table, _ = extract_video(video, cfg, steps=STEPS)
     assert len(table) == 18
     assert _rows(table, range(7)) == [(f, True, 0) for f in range(7)]
     assert _rows(table, range(7, 10)) == [(f, False, 1) for f in range(7, 10)]
@@ -207,14 +198,13 @@ def test_failed_re_registration_leaves_frames_unmeasured_until_a_registration_fi
     assert any("frames 7-10: 1 measured again with the new registration, 3 marked not ok" in w for w in warnings)
 
 
-def test_registration_lost_to_the_end_marks_the_rest_not_ok(tmp_path, monkeypatch):
+def test_registration_lost_to_the_end_marks_the_rest_not_ok(tmp_path):
     """Bumped at 7 into a view that never registers: every frame from the move on is not ok
     (7-8 found going back; 9 on while lost), and the tries back off (9, 11, 14; gaps 1, 2, 3
     frames after each try, capped at ``recheck_every``)."""
-    fakes.install(monkeypatch)
     cfg = fakes.fake_config(recheck_every=3, register_frames=1)
     video = fakes.write_video(tmp_path / "e.mp4", n=18, bumped_from=7, blocked=set(range(7, 18)))
-    table, _ = extract_video(video, cfg)
+    table, _ = extract_video(video, cfg, steps=STEPS)
     assert _rows(table, range(7)) == [(f, True, 0) for f in range(7)]
     assert _rows(table, range(7, 18)) == [(f, False, 0) for f in range(7, 18)]
     reasons = table.set_index("frame")["reason"]
@@ -224,13 +214,12 @@ def test_registration_lost_to_the_end_marks_the_rest_not_ok(tmp_path, monkeypatc
     assert len(table.attrs["registrations"]) == 1
 
 
-def test_view_blocked_for_a_while_resumes_with_the_old_registration(tmp_path, monkeypatch):
+def test_view_blocked_for_a_while_resumes_with_the_old_registration(tmp_path):
     """The view is blocked (8-10) but the camera did not move: the registration is lost at the
     check at 9, and the next try (11) finds the old registration fits again."""
-    fakes.install(monkeypatch)
     cfg = fakes.fake_config(recheck_every=3, register_frames=1)
     video = fakes.write_video(tmp_path / "k.mp4", n=18, blocked={8, 9, 10})
-    table, _ = extract_video(video, cfg)
+    table, _ = extract_video(video, cfg, steps=STEPS)
     assert _rows(table, range(8)) == [(f, True, 0) for f in range(8)]
     assert _rows(table, range(8, 11)) == [(f, False, 0) for f in range(8, 11)]
     assert _rows(table, range(11, 18)) == [(f, True, 0) for f in range(11, 18)]
@@ -276,33 +265,30 @@ def test_window_medians_equal_the_clipped_windows_one_by_one():
                 assert np.array_equal(_window_medians(x, before, width, n_out), one_by_one)
 
 
-def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
+def test_extract_video_marks_a_glitch_and_says_so(tmp_path):
     """A frame measured 1.7 rad off its neighbours (here a fake measurement of an odd frame) is
     marked not ok in the angles table, with a warning; glitch_rad=0 leaves it to the kinematics
     check (its depth is off the insertion too); both off keep it."""
-    fakes.install(monkeypatch)
     path = tmp_path / "g.mp4"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (fakes.W, fakes.H))
     for i in range(12):
         writer.write(fakes.frame_image(20 if i == 5 else i))  # frame 5 as bright as frame 20 (theta_tip 2.3 vs 0.8)
     writer.release()
-    table, _ = extract_video(path, fakes.fake_config())
+    table, _ = extract_video(path, fakes.fake_config(), steps=STEPS)
     assert table.loc[table["frame"] != 5, "ok"].all() and not table.loc[table["frame"] == 5, "ok"].item()
     assert table.loc[table["frame"] == 5, "reason"].item().startswith("glitch: theta_tip")
     assert any("1 frame(s) marked not ok as glitches" in w for w in table.attrs["warnings"])
-    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0))
+    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0), steps=STEPS)
     assert table.loc[table["frame"] == 5, "reason"].item().startswith("kinematics: depth")
     assert any("1 frame(s) marked not ok off the constant-speed insertion" in w for w in table.attrs["warnings"])
-    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0))
+    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0), steps=STEPS)
     assert table["ok"].all()
     # the command line: --glitch-rad reaches the extraction; a negative value is a usage error
     from tympani.pipeline.cli import main
 
-    monkeypatch.setattr("tympani.pipeline.cli._extract_config", lambda args: fakes.fake_config(
-        glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol))
     for rad, ok in (("0.25", False), ("0", True)):
         assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad,
-                     "--kinematics-tol", rad if rad == "0" else "0.5"]) == 0
+                     "--kinematics-tol", rad if rad == "0" else "0.5"], steps=STEPS) == 0
         angles = pd.read_csv(tmp_path / rad / "g.angles.csv")
         assert bool(angles.loc[angles["frame"] == 5, "ok"].item()) is ok
     assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--glitch-rad", "-1"]) == 2
@@ -311,19 +297,17 @@ def test_extract_video_marks_a_glitch_and_says_so(tmp_path, monkeypatch):
 
 def test_registration_failure_is_input_error(tmp_path, fake_vision):
     with pytest.raises(InputError, match="registration failed: no phantom found"):
-        extract_video(fakes.write_video(tmp_path / "black.mp4", n=6, all_dark=True), fake_vision)
+        extract_video(fakes.write_video(tmp_path / "black.mp4", n=6, all_dark=True), fake_vision, steps=STEPS)
 
 
-def test_measurement_exception_keeps_the_row(tmp_path, monkeypatch, fake_vision):
-    from tympani.vision import angles
-
+def test_measurement_exception_keeps_the_row(tmp_path, fake_vision):
     def flaky(gray, registration, phantom, array, cfg):
         if gray[8:].mean() > 100:
             raise ValueError("boom")
         return fakes.fake_measure_frame(gray, registration, phantom, array, cfg)
 
-    monkeypatch.setattr(angles, "measure_frame", flaky)
-    table, _ = extract_video(fakes.write_video(tmp_path / "f.mp4", n=12), fake_vision)
+    steps = dataclasses.replace(STEPS, measure_frame=flaky)
+    table, _ = extract_video(fakes.write_video(tmp_path / "f.mp4", n=12), fake_vision, steps=steps)
     failed = table[~table["ok"]]
     assert len(table) == 12 and len(failed) > 0
     assert failed["reason"].str.contains("measurement raised ValueError: boom").all()
@@ -333,7 +317,7 @@ def test_measurement_exception_keeps_the_row(tmp_path, monkeypatch, fake_vision)
 def test_process_video_writes_resumes_and_overwrites(tmp_path, fake_vision):
     video = fakes.write_video(tmp_path / "t2.mp4", n=8)
     out = tmp_path / "out"
-    res = process_video(video, out, fake_vision)
+    res = process_video(video, out, fake_vision, steps=STEPS)
     assert res["status"] == "ok" and res["n_frames"] == 8 and res["n_ok"] == 8
     files = output_paths(out, "t2")
     reg = json.loads(files["registration"].read_text())
@@ -347,12 +331,12 @@ def test_process_video_writes_resumes_and_overwrites(tmp_path, fake_vision):
     back = pd.read_csv(files["angles"])
     assert back["ok"].dtype == bool and len(back) == 8
     mtimes = {k: f.stat().st_mtime_ns for k, f in files.items()}
-    again = process_video(video, out, fake_vision)
+    again = process_video(video, out, fake_vision, steps=STEPS)
     assert again["status"] == "skipped" and again["n_frames"] == 8 and again["n_ok"] == 8
     assert {k: f.stat().st_mtime_ns for k, f in files.items()} == mtimes
-    assert process_video(video, out, fake_vision, overwrite=True)["status"] == "ok"
+    assert process_video(video, out, fake_vision, overwrite=True, steps=STEPS)["status"] == "ok"
     files["provenance"].unlink()  # an unfinished set is redone
-    assert process_video(video, out, fake_vision)["status"] == "ok"
+    assert process_video(video, out, fake_vision, steps=STEPS)["status"] == "ok"
     assert _leftovers(out) == []
 
 
@@ -368,17 +352,17 @@ def test_interrupt_while_writing_leaves_no_outputs(tmp_path, monkeypatch, fake_v
 
     monkeypatch.setattr(batch, "atomic_write_json", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        process_video(fakes.write_video(tmp_path / "k.mp4", n=4), tmp_path / "out", fake_vision)
+        process_video(fakes.write_video(tmp_path / "k.mp4", n=4), tmp_path / "out", fake_vision, steps=STEPS)
     assert len(calls) == 2 and list((tmp_path / "out").iterdir()) == []
 
 
 def test_trial_name_and_folder_input(tmp_path, fake_vision):
     folder = fakes.write_folder(tmp_path / "trial_7", n=6)
-    res = process_video(folder, tmp_path / "out", fake_vision, fps=30.0)
+    res = process_video(folder, tmp_path / "out", fake_vision, fps=30.0, steps=STEPS)
     assert res["trial"] == "trial_7" and res["n_frames"] == 6
     assert (tmp_path / "out" / "trial_7.angles.csv").exists()
     with pytest.raises(InputError, match="trial name"):
-        process_video(folder, tmp_path / "out", fake_vision, fps=30.0, trial="../escape")
+        process_video(folder, tmp_path / "out", fake_vision, fps=30.0, trial="../escape", steps=STEPS)
 
 
 # --------------------------------------------------------------------------- batches
@@ -406,44 +390,43 @@ def _check_summary(summary, out):
 
 def test_batch_one_bad_video_among_good_ones(tmp_path, fake_vision):
     out = tmp_path / "out"
-    summary = extract_batch(_videos(tmp_path), out, fake_vision, progress=False)
+    summary = extract_batch(_videos(tmp_path), out, fake_vision, progress=False, steps=STEPS)
     _check_summary(summary, out)
-    again = extract_batch(_videos(tmp_path)[::2], out, fake_vision, progress=False)
+    again = extract_batch(_videos(tmp_path)[::2], out, fake_vision, progress=False, steps=STEPS)
     assert again["status"].tolist() == ["skipped", "skipped"]
 
 
 def test_batch_with_process_pool_executor(tmp_path, fake_vision):
     out = tmp_path / "out"
     with cf.ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("fork")) as pool:
-        summary = extract_batch(_videos(tmp_path), out, fake_vision, executor=pool, progress=False)
+        summary = extract_batch(_videos(tmp_path), out, fake_vision, executor=pool, progress=False, steps=STEPS)
     _check_summary(summary, out)
 
 
-def test_batch_with_workers_keyword(tmp_path, fake_vision, monkeypatch):
-    # fork keeps the fakes in the workers whatever the platform's default start method
-    monkeypatch.setattr(batch, "_pool_context", lambda: mp.get_context("fork"))
+def test_batch_with_workers_keyword(tmp_path, fake_vision):
+    """A pool of extract_batch's own (forkserver): the fake steps travel pickled to its workers."""
     out = tmp_path / "out"
-    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, workers=2, progress=False), out)
+    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, workers=2, progress=False, steps=STEPS), out)
 
 
 def test_batch_items_and_duplicate_trials(tmp_path, fake_vision):
     v = fakes.write_video(tmp_path / "v.mp4", n=4)
     folder = fakes.write_folder(tmp_path / "frames", n=4)
     items = [VideoItem(str(v), trial="a"), {"path": folder, "trial": "b", "fps": 10.0}]
-    summary = extract_batch(items, tmp_path / "out", fake_vision, progress=False)
+    summary = extract_batch(items, tmp_path / "out", fake_vision, progress=False, steps=STEPS)
     assert summary["status"].tolist() == ["ok", "ok"]
     with pytest.raises(InputError, match="also used"):
-        extract_batch([v, v], tmp_path / "out2", fake_vision, progress=False)
+        extract_batch([v, v], tmp_path / "out2", fake_vision, progress=False, steps=STEPS)
 
 
 def test_batch_dict_items_take_video_when_path_is_blank(tmp_path, fake_vision):
     v = fakes.write_video(tmp_path / "v.mp4", n=4)
     summary = extract_batch([{"path": None, "video": str(v), "trial": "a"}], tmp_path / "out", fake_vision,
-                            progress=False)
+                            progress=False, steps=STEPS)
     assert summary["status"].tolist() == ["ok"] and summary["path"].tolist() == [str(v)]
     for item in ({"trial": "b"}, {"path": "", "video": None}):  # no video named: a clear error, not os.fspath's
         with pytest.raises(ValueError, match="needs a 'path' or 'video'"):
-            extract_batch([item], tmp_path / "out2", fake_vision, progress=False)
+            extract_batch([item], tmp_path / "out2", fake_vision, progress=False, steps=STEPS)
 
 
 class _SerialExecutor:
@@ -462,7 +445,8 @@ class _SerialExecutor:
 
 def test_batch_with_any_submit_executor(tmp_path, fake_vision):
     out = tmp_path / "out"
-    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, executor=_SerialExecutor(), progress=False), out)
+    _check_summary(extract_batch(_videos(tmp_path), out, fake_vision, executor=_SerialExecutor(), progress=False,
+                                  steps=STEPS), out)
 
 
 # --------------------------------------------------------------------------- manifest
@@ -548,7 +532,8 @@ def test_annotate_video_with_labels(tmp_path, fake_vision):
     video = fakes.write_video(tmp_path / "an.mp4", n=12)
     labels = labels_frame([parse_label(["4", "tip=40,20", "bot=30,30"]), parse_label(["9", "tip=50,10"]),
                            parse_label(["99", "tip=1,1"])])
-    res = annotate_video(video, tmp_path / "out", fake_vision, frames=[0, 4], labels=labels, mp4=True)
+    res = annotate_video(video, tmp_path / "out", fake_vision, frames=[0, 4], labels=labels, mp4=True,
+                         steps=STEPS)
     assert sorted(p.name for p in res.images) == ["an.frame000000.png", "an.frame000004.png", "an.frame000009.png"]
     assert res.video is not None and res.video.stat().st_size > 0 and any("99" in w for w in res.warnings)
     cmp = res.comparison
@@ -642,7 +627,7 @@ def test_array_too_small_in_the_image_is_refused_and_said_once(tmp_path):
 
 
 def test_array_width_pools_the_measured_frames():
-    from tympani.pipeline.extract.batch import array_width
+    from tympani.pipeline.extract.video import array_width
 
     rows = [{"ok": True, "width_ratio": 1.2}] * 9
     rows += [{"ok": False, "width_ratio": 5.0}, {"ok": True, "width_ratio": float("nan")}, {"ok": True}]  # none counts

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -14,12 +15,13 @@ from tympani.pipeline.cli import COMMANDS, main
 
 
 @pytest.fixture
-def fake_vision(monkeypatch):
-    fakes.install(monkeypatch)  # the CLI builds ExtractConfig() with the modules' default configs
+def fake_vision():
+    """The fake vision steps, for ``_run(..., steps=fake_vision)``."""
+    return fakes.STEPS
 
 
-def _run(capsys, *argv):
-    code = main(list(argv))
+def _run(capsys, *argv, steps=None):
+    code = main(list(argv), steps=steps)
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -70,7 +72,8 @@ def test_bad_usage_is_exit_2_with_one_line(capsys, argv, fragment):
 
 
 def test_extract_missing_video_is_exit_2(capsys, tmp_path, fake_vision):
-    code, _, err = _run(capsys, "extract", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "out"), "-q")
+    code, _, err = _run(capsys, "extract", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "out"), "-q",
+                        steps=fake_vision)
     assert code == 2
     assert _one_line_error(err) == f"tympani: {tmp_path / 'nope.mp4'}: no such file or folder"
 
@@ -80,7 +83,7 @@ def test_extract_good_and_bad_videos(capsys, tmp_path, fake_vision):
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"junk" * 100)
     out = tmp_path / "out"
-    code, stdout, err = _run(capsys, "extract", str(good), str(bad), "--out", str(out), "--quiet")
+    code, stdout, err = _run(capsys, "extract", str(good), str(bad), "--out", str(out), "--quiet", steps=fake_vision)
     assert code == 2 and "not a video" in _one_line_error(err)
     assert "1 ok, 0 skipped, 1 failed" in stdout
     assert pd.read_csv(out / "good.angles.csv")["ok"].all()
@@ -91,11 +94,12 @@ def test_extract_good_and_bad_videos(capsys, tmp_path, fake_vision):
 def test_extract_all_good_then_resume(capsys, tmp_path, fake_vision):
     videos = [str(fakes.write_video(tmp_path / f"v{i}.mp4", n=5)) for i in range(2)]
     out = str(tmp_path / "out")
-    code, stdout, err = _run(capsys, "extract", *videos, "--out", out, "-q")
+    code, stdout, err = _run(capsys, "extract", *videos, "--out", out, "-q", steps=fake_vision)
     assert code == 0 and "2 ok" in stdout and err == ""
-    code, stdout, _ = _run(capsys, "extract", *videos, "--out", out, "-q")
+    code, stdout, _ = _run(capsys, "extract", *videos, "--out", out, "-q", steps=fake_vision)
     assert code == 0 and "2 skipped" in stdout
-    code, stdout, _ = _run(capsys, "extract", *videos, "--out", out, "-q", "--overwrite", "--workers", "1")
+    code, stdout, _ = _run(capsys, "extract", *videos, "--out", out, "-q", "--overwrite", "--workers", "1",
+                           steps=fake_vision)
     assert code == 0 and "2 ok" in stdout
 
 
@@ -104,10 +108,12 @@ def test_extract_from_manifest(capsys, tmp_path, fake_vision):
     (tmp_path / "a_force.csv").write_text("time_s,force_g\n0,0\n")
     manifest = tmp_path / "m.csv"
     manifest.write_text("trial,speed_mm_s,video,force\ntrial_a,0.5,a.mp4,a_force.csv\n")
-    code, stdout, _ = _run(capsys, "extract", "--manifest", str(manifest), "--out", str(tmp_path / "out"), "-q")
+    code, stdout, _ = _run(capsys, "extract", "--manifest", str(manifest), "--out", str(tmp_path / "out"), "-q",
+                           steps=fake_vision)
     assert code == 0 and (tmp_path / "out" / "trial_a.angles.csv").exists()
     manifest.write_text("trial,speed_mm_s,video,force\ntrial_a,0.5,a.mp4,a_force.csv\ntrial_a,1,a.mp4,a_force.csv\n")
-    code, _, err = _run(capsys, "extract", "--manifest", str(manifest), "--out", str(tmp_path / "out"), "-q")
+    code, _, err = _run(capsys, "extract", "--manifest", str(manifest), "--out", str(tmp_path / "out"), "-q",
+                        steps=fake_vision)
     assert code == 2 and _one_line_error(err) == f"tympani: {manifest}:3: duplicate trial 'trial_a' (first on line 2)"
 
 
@@ -118,7 +124,7 @@ def test_interrupt_is_exit_130(capsys, tmp_path, monkeypatch, fake_vision):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(batch, "extract_batch", interrupted)
-    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"))
+    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"), steps=fake_vision)
     assert code == 130 and "interrupted" in err
 
 
@@ -129,21 +135,19 @@ def test_unexpected_error_is_exit_1_one_line_and_debug_shows_traceback(capsys, t
         raise ZeroDivisionError("oops\nsecond line")
 
     monkeypatch.setattr(batch, "extract_batch", broken)
-    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"))
+    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"), steps=fake_vision)
     assert code == 1 and "ZeroDivisionError: oops second line" in _one_line_error(err)
-    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"), "--debug")
+    code, _, err = _run(capsys, "extract", "v.mp4", "--out", str(tmp_path / "out"), "--debug", steps=fake_vision)
     assert code == 1 and "Traceback" in err
 
 
-def test_bug_inside_a_video_is_exit_1(capsys, tmp_path, monkeypatch, fake_vision):
-    from tympani.vision import registration
-
+def test_bug_inside_a_video_is_exit_1(capsys, tmp_path, fake_vision):
     def broken(*args, **kwargs):
         raise RuntimeError("registration bug")
 
-    monkeypatch.setattr(registration, "register", broken)
     video = fakes.write_video(tmp_path / "v.mp4", n=3)
-    code, _, err = _run(capsys, "extract", str(video), "--out", str(tmp_path / "out"), "-q")
+    code, _, err = _run(capsys, "extract", str(video), "--out", str(tmp_path / "out"), "-q",
+                        steps=replace(fake_vision, register=broken))
     assert code == 1 and "RuntimeError: registration bug" in _one_line_error(err)
 
 
@@ -156,7 +160,7 @@ def test_annotate_with_labels(capsys, tmp_path, fake_vision):
     labels.write_text("frame,tip_x_px,tip_y_px,bot_x_px,bot_y_px\n6,40,20,,\n")
     out = tmp_path / "out"
     code, stdout, _ = _run(capsys, "annotate", str(video), "--out", str(out), "--frames", "0,3", "-q",
-                           "--label", "2", "tip=40,20", "bot=30,30", "--labels", str(labels))
+                           "--label", "2", "tip=40,20", "bot=30,30", "--labels", str(labels), steps=fake_vision)
     assert code == 0 and "2 labelled frame(s)" in stdout and "theta_tip" in stdout
     assert {p.name for p in out.glob("*.png")} == {f"an.frame{i:06d}.png" for i in (0, 2, 3, 6)}
     assert pd.read_csv(out / "an.label_compare.csv")["frame"].tolist() == [2, 6]
@@ -171,12 +175,13 @@ def test_annotate_with_labels(capsys, tmp_path, fake_vision):
 )
 def test_annotate_bad_labels_exit_2(capsys, tmp_path, fake_vision, extra, fragment):
     video = fakes.write_video(tmp_path / "an.mp4", n=3)
-    code, _, err = _run(capsys, "annotate", str(video), "--out", str(tmp_path / "out"), "-q", *extra)
+    code, _, err = _run(capsys, "annotate", str(video), "--out", str(tmp_path / "out"), "-q", *extra, steps=fake_vision)
     assert code == 2 and fragment in _one_line_error(err)
 
 
 def test_bench_on_a_given_video(capsys, tmp_path, fake_vision):
     video = fakes.write_video(tmp_path / "b.mp4", n=10)
-    code, stdout, _ = _run(capsys, "bench", "--video", str(video), "--skip", "memory,diagnosis,workers,logs")
+    code, stdout, _ = _run(capsys, "bench", "--video", str(video), "--skip", "memory,diagnosis,workers,logs",
+                           steps=fake_vision)
     assert code == 0 and "decode only" in stdout and "full extract" in stdout and "ratio" in stdout
     assert "measure" in stdout and "peak memory" in stdout

@@ -16,7 +16,10 @@ diagnosis). The names below are the main entry points, one per step of the data 
 Everything else is importable from the subpackages.
 """
 
-from tympani.pipeline.extract.batch import ExtractConfig, extract_batch, extract_video, read_manifest
+from tympani.pipeline.extract.batch import extract_batch
+from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
+from tympani.pipeline.extract.manifest import read_manifest
+from tympani.pipeline.extract.video import extract_video
 from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds
 from tympani.pipeline.diagnosis.analysis import diagnose
 from tympani.pipeline.diagnosis.config import DiagnosisConfig
@@ -29,7 +32,7 @@ from tympani.vision.registration import RegistrationConfig, register
 
 __all__ = [
     "DEFAULT_PHANTOM", "BoundsConfig", "DiagnosisConfig", "ExtractConfig", "MeasureConfig", "Phantom", "RegistrationConfig",
-    "RunConfig", "SyncConfig", "diagnose", "extract_batch", "extract_video", "fit_bounds", "fit_synced",
+    "RunConfig", "SyncConfig", "VisionSteps", "diagnose", "extract_batch", "extract_video", "fit_bounds", "fit_synced",
     "measure_frame", "prepare_measurement", "read_manifest", "register", "run_pipeline", "sync_manifest",
     "sync_trial",
 ]

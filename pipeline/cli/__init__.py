@@ -19,7 +19,7 @@ import sys
 import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 from tympani.pipeline.cli.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int,
                                speed_list)
@@ -80,7 +80,7 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _extract_config(args: argparse.Namespace):
-    from tympani.pipeline.extract.batch import ExtractConfig
+    from tympani.pipeline.extract.config import ExtractConfig
     from tympani.vision.frames import LensCalibration
     from tympani.vision.geometry import DEFAULT_ARRAY
 
@@ -90,6 +90,14 @@ def _extract_config(args: argparse.Namespace):
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
                          glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
                          calibration=calibration, array=array)
+
+
+def _vision_steps(args: argparse.Namespace):
+    """The vision functions :func:`main` was given (``args.steps``), else the real ones."""
+    from tympani.pipeline.extract.config import VisionSteps
+
+    steps = getattr(args, "steps", None)
+    return steps if steps is not None else VisionSteps()
 
 
 # --------------------------------------------------------------------------- extract
@@ -156,7 +164,8 @@ def _scheduler(args: argparse.Namespace, command: str):
 
 
 def _run_extract(args: argparse.Namespace) -> int:
-    from tympani.pipeline.extract.batch import extract_batch, read_manifest
+    from tympani.pipeline.extract.batch import extract_batch
+    from tympani.pipeline.extract.manifest import read_manifest
     from tympani.pipeline.io import atomic_write_csv
 
     if bool(args.videos) == bool(args.manifest):
@@ -173,7 +182,8 @@ def _run_extract(args: argparse.Namespace) -> int:
     cfg = _extract_config(args)
     with _scheduler(args, "extract") as client:
         summary = extract_batch(items, args.out, cfg, workers=args.workers, executor=client,
-                                overwrite=args.overwrite, progress=not args.quiet, fps=args.fps)
+                                overwrite=args.overwrite, progress=not args.quiet, fps=args.fps,
+                                steps=_vision_steps(args))
     for _, row in summary[summary["status"] == "failed"].iterrows():
         print(f"tympani: {row['error']}", file=sys.stderr)
     for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
@@ -219,7 +229,8 @@ def _run_annotate(args: argparse.Namespace) -> int:
         tables.append(labels_frame(parse_label(tokens) for tokens in args.label))
     labels = labels_frame(pd.concat(tables).to_dict("records")) if tables else None
     result = annotate_video(args.video, args.out, _extract_config(args), frames=args.frames, every=args.every,
-                            mp4=args.mp4, labels=labels, fps=args.fps, trial=args.trial, progress=not args.quiet)
+                            mp4=args.mp4, labels=labels, fps=args.fps, trial=args.trial, progress=not args.quiet,
+                            steps=_vision_steps(args))
     for warning in result.warnings:
         print(f"tympani: warning: {warning}", file=sys.stderr)
     print(f"annotate: {len(result.images)} frame(s) drawn" + (f", video {result.video}" if result.video else "")
@@ -283,7 +294,7 @@ def _run_bench(args: argparse.Namespace) -> int:
                          **{k: v for k, v in changes.items() if v is not None})
     except ValueError as exc:
         raise UsageError(f"tympani bench: {exc}") from None
-    result = run_bench(video=args.video, fps=args.fps, config=config,
+    result = run_bench(video=args.video, fps=args.fps, config=config, steps=_vision_steps(args),
                        log=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
     print(format_bench(result))
     return 0
@@ -570,8 +581,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``tympani`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+def main(argv: Sequence[str] | None = None, *, steps: Any = None) -> int:
+    """Run ``tympani`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+
+    ``steps`` (a :class:`~pipeline.extract.config.VisionSteps`) are the vision functions that
+    ``extract``, ``annotate`` and ``bench`` call; None: the real ones. The commands find them
+    as ``args.steps``.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     if not debug:
@@ -581,6 +597,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
+        args.steps = steps
         if getattr(args, "_run", None) is None:
             raise UsageError("tympani: no command given (see 'tympani --help')")
         return int(args._run(args))

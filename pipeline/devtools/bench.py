@@ -5,7 +5,7 @@
 1. **decode vs extraction** on one video (a rendered 640×480 mp4 with a camera's sensor noise
    by default, see :func:`render_bench_video` and :attr:`BenchConfig.noise_sigma`): frames/s of
    decoding alone (read + grey conversion) and of the full extraction
-   (:func:`pipeline.extract.batch.extract_video`: registration, checks, measurement), and their ratio.
+   (:func:`pipeline.extract.video.extract_video`: registration, checks, measurement), and their ratio.
    Both are timed ``repeats`` times (5), alternately, and the fastest of each is compared. Each
    round's own ratio (its extraction against the decoding just before it) is listed too, with
    the median of the warm rounds: adjacent timings share the machine's load, so that median
@@ -258,16 +258,16 @@ def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None)
     return n, time.perf_counter() - t0, source.shape[:2]
 
 
-def _extract_s(path: Path, cfg: Any, fps: float | None) -> tuple[Any, float]:
+def _extract_s(path: Path, cfg: Any, fps: float | None, steps: Any) -> tuple[Any, float]:
     """The angles table of ``path`` and the wall time (s) of its extraction."""
-    from tympani.pipeline.extract.batch import extract_video
+    from tympani.pipeline.extract.video import extract_video
 
     t0 = time.perf_counter()
-    table, _ = extract_video(path, cfg, fps=fps)
+    table, _ = extract_video(path, cfg, fps=fps, steps=steps)
     return table, time.perf_counter() - t0
 
 
-#: Stage groups of the report: name -> timing keys of :class:`pipeline.extract.batch.ExtractLog`.
+#: Stage groups of the report: name -> timing keys of :class:`pipeline.extract.stream.ExtractLog`.
 STAGE_GROUPS: dict[str, tuple[str, ...]] = {
     "decode": ("decode", "gray"),
     "registration": ("register", "prepare", "check"),
@@ -279,7 +279,7 @@ STAGE_GROUPS: dict[str, tuple[str, ...]] = {
 }
 
 
-def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 5) -> dict:
+def _speed(path: Path, cfg: Any, steps: Any, fps: float | None, repeats: int = 5) -> dict:
     """Section 1-2: decode-only against full extraction, cold and warm, and per-stage times.
 
     Decoding and extraction are timed ``repeats`` times each, alternately, and the fastest
@@ -294,7 +294,7 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 5) -> dict:
     with _one_cpu() as cpu:
         for _ in range(max(1, int(repeats))):
             decodes.append(_decode_s(path, fps, cfg.decoder_threads))
-            extracts.append(_extract_s(path, cfg, fps))
+            extracts.append(_extract_s(path, cfg, fps, steps))
     # each round's extraction speed as a fraction of the decoding timed just before it; the
     # first round's extraction is the cold one
     rounds = [(len(t) / e) / (k / d) if e > 0 and d > 0 else 0.0 for (k, d, _), (t, e) in zip(decodes, extracts)]
@@ -340,7 +340,8 @@ def _speed(path: Path, cfg: Any, fps: float | None, repeats: int = 5) -> dict:
 
 
 def _child_rss(argv: list[str]) -> None:
-    """Body of the memory subprocess: ``python -m tympani.pipeline.devtools.bench rss VIDEO CFG_PICKLE [FPS]``.
+    """Body of the memory subprocess: ``python -m tympani.pipeline.devtools.bench rss VIDEO CFG_PICKLE [FPS]``
+    (``CFG_PICKLE``: the pickled ``(ExtractConfig, VisionSteps)``).
 
     Prints one JSON line: ``import_rss_mib`` (peak after the imports), ``peak_rss_mib`` (after
     :func:`pipeline.extract.batch.process_video`), ``n_frames`` and ``seconds``.
@@ -353,11 +354,11 @@ def _child_rss(argv: list[str]) -> None:
     video, cfg_path = argv[0], argv[1]
     fps = float(argv[2]) if len(argv) > 2 else None
     with open(cfg_path, "rb") as fh:
-        cfg = pickle.load(fh)
+        cfg, steps = pickle.load(fh)
     before = peak_rss_mib()
     with tempfile.TemporaryDirectory(prefix="tympani-bench-rss-") as out:
         t0 = time.perf_counter()
-        summary = process_video(video, out, cfg, fps=fps, overwrite=True)
+        summary = process_video(video, out, cfg, fps=fps, overwrite=True, steps=steps)
         seconds = time.perf_counter() - t0
     print(json.dumps({"import_rss_mib": before, "peak_rss_mib": peak_rss_mib(), "n_frames": int(summary["n_frames"]),
                       "n_ok": int(summary["n_ok"]), "seconds": seconds}))
@@ -376,11 +377,11 @@ def _rss_in_subprocess(video: Path, cfg_path: Path, fps: float | None) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def _memory(path: Path, cfg: Any, fps: float | None, factor: int, tmp: Path) -> dict:
+def _memory(path: Path, cfg: Any, steps: Any, fps: float | None, factor: int, tmp: Path) -> dict:
     """Section 3: peak RSS of one extraction of the video and of a ``factor`` times longer one."""
     cfg_path = tmp / "extract_config.pickle"
     with open(cfg_path, "wb") as fh:
-        pickle.dump(cfg, fh)
+        pickle.dump((cfg, steps), fh)
     long_path = loop_video(path, tmp / "bench_long.mp4", factor, fps=fps)
     short = _rss_in_subprocess(path, cfg_path, fps)
     long = _rss_in_subprocess(long_path, cfg_path, fps)
@@ -413,16 +414,18 @@ def _diagnosis(config: BenchConfig) -> dict:
 # --------------------------------------------------------------------------- 5: workers
 
 
-def _workers(path: Path, cfg: Any, fps: float | None, config: BenchConfig, tmp: Path) -> list[dict]:
+def _workers(path: Path, cfg: Any, steps: Any, fps: float | None, config: BenchConfig, tmp: Path) -> list[dict]:
     """Section 5: :func:`pipeline.extract.batch.extract_batch` on copies of the video per worker count."""
-    from tympani.pipeline.extract.batch import VideoItem, extract_batch
+    from tympani.pipeline.extract.batch import extract_batch
+    from tympani.pipeline.extract.manifest import VideoItem
 
     items = [VideoItem(str(path), trial=f"bench{i:02d}", fps=fps) for i in range(config.batch_videos)]
     out = []
     for workers in config.workers:
         out_dir = tmp / f"batch_w{workers}"
         t0 = time.perf_counter()
-        summary = extract_batch(items, out_dir, cfg, workers=workers, overwrite=True, progress=False, fps=fps)
+        summary = extract_batch(items, out_dir, cfg, workers=workers, overwrite=True, progress=False, fps=fps,
+                                steps=steps)
         seconds = time.perf_counter() - t0
         shutil.rmtree(out_dir, ignore_errors=True)
         ok = summary["status"] == "ok"
@@ -448,7 +451,7 @@ def _logs(config: BenchConfig, tmp: Path) -> dict:
 def run_bench(
     *, video: str | os.PathLike | None = None, n_frames: int | None = None, seed: int | None = None,
     fps: float | None = None, cfg: Any = None, config: BenchConfig | None = None,
-    log: Callable[[str], None] | None = None,
+    log: Callable[[str], None] | None = None, steps: Any = None,
 ) -> dict:
     """Run the benchmark (see the module docstring) with OpenCV on one thread.
 
@@ -466,6 +469,8 @@ def run_bench(
         Sizes and sections (default ``BenchConfig()``).
     log : callable, optional
         Called with a short line as each section starts (progress).
+    steps : VisionSteps, optional
+        The vision functions extraction calls (default ``VisionSteps()``).
 
     Returns
     -------
@@ -488,12 +493,13 @@ def run_bench(
     """
     import cv2
 
-    from tympani.pipeline.extract.batch import ExtractConfig
+    from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 
     config = config if config is not None else BenchConfig()
     overrides: dict[str, Any] = {k: v for k, v in (("n_frames", n_frames), ("seed", seed)) if v is not None}
     config = dataclasses.replace(config, **overrides)
     cfg = cfg if cfg is not None else ExtractConfig()
+    steps = steps if steps is not None else VisionSteps()
     say = log if log is not None else (lambda _line: None)
     t_start = time.perf_counter()
     threads = cv2.getNumThreads()
@@ -515,11 +521,11 @@ def run_bench(
                 result["video"] = str(video)
             result["file_bytes"] = path.stat().st_size if path.is_file() else None
             say("decode vs extraction")
-            result.update(_speed(path, cfg, fps, config.repeats))
+            result.update(_speed(path, cfg, steps, fps, config.repeats))
             sections: list[tuple[str, Callable[[], Any]]] = [
-                ("memory", lambda: _memory(path, cfg, fps, config.long_factor, tmp)),
+                ("memory", lambda: _memory(path, cfg, steps, fps, config.long_factor, tmp)),
                 ("diagnosis", lambda: _diagnosis(config)),
-                ("workers", lambda: _workers(path, cfg, fps, config, tmp)),
+                ("workers", lambda: _workers(path, cfg, steps, fps, config, tmp)),
                 ("logs", lambda: _logs(config, tmp)),
             ]
             for name, run in sections:

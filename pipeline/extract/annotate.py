@@ -1,7 +1,7 @@
 """Annotated frames for checking extraction by eye, and manual labels to compare against.
 
 :func:`annotate_video` registers and measures a video exactly as ``extract`` does (it runs
-:func:`pipeline.extract.batch.measure_frames`) and writes, for the chosen frames,
+:func:`pipeline.extract.stream.measure_frames`) and writes, for the chosen frames,
 ``<trial>.frame<NNNNNN>.png`` with the walls, centre, array, contact arc, tip, contact start and
 angles drawn on them (:func:`vision.drawing.annotate_frame`), optionally an annotated
 ``<trial>.annotated.mp4`` of every frame, and ``<trial>.annotated.csv`` with the automatic
@@ -28,7 +28,9 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from tympani.pipeline.extract.batch import ExtractConfig, ExtractLog, measure_frames, trial_name
+from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
+from tympani.pipeline.extract.stream import ExtractLog, measure_frames
+from tympani.pipeline.extract.video import trial_name
 from tympani.pipeline.io import atomic_write_bytes, atomic_write_csv
 from tympani.vision.drawing import annotate_frame
 from tympani.vision.errors import InputError
@@ -258,6 +260,7 @@ def annotate_video(
     fps: float | None = None,
     trial: str | None = None,
     progress: bool = False,
+    steps: VisionSteps = VisionSteps(),
 ) -> AnnotateResult:
     """Draw registration and measurement on frames of a video; compare with manual labels.
 
@@ -283,6 +286,8 @@ def annotate_video(
         Trial name for the output files (default: file stem).
     progress : bool
         Progress bar on stderr.
+    steps : VisionSteps
+        The vision functions (as for extraction).
 
     Returns
     -------
@@ -310,7 +315,7 @@ def annotate_video(
     writer, tmp_video = None, None
     final_video = out / f"{name}.annotated.mp4"
     try:
-        for mf in measure_frames(source, cfg, trial=name, log=log, progress=progress):
+        for mf in measure_frames(source, cfg, trial=name, log=log, progress=progress, steps=steps):
             idx = mf.frame.index
             draw = idx in wanted or (stride is not None and idx % stride == 0) or idx in label_rows
             labels_px = None
@@ -369,7 +374,7 @@ def annotate_video(
 
 
 def _rows_table(rows: list[dict]) -> pd.DataFrame:
-    from tympani.pipeline.extract.batch import ANGLE_COLUMNS
+    from tympani.pipeline.extract.video import ANGLE_COLUMNS
 
     table = pd.DataFrame(rows)
     if table.empty:

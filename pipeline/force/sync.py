@@ -965,7 +965,7 @@ def sync_manifest(
         The manifest itself or ``log_format`` is unusable (missing, bad header, bad value); a
         bad trial (its logs, or its own format file) only marks that trial failed.
     """
-    from tympani.pipeline.extract.batch import read_manifest
+    from tympani.pipeline.extract.manifest import read_manifest
 
     mpath = Path(manifest)
     default_format = read_log_format(log_format) if log_format is not None else None

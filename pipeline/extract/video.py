@@ -1,0 +1,439 @@
+"""One video → its angles table: :func:`extract_video`.
+
+:func:`~pipeline.extract.stream.measure_frames` streams the video through registration and
+measurement; :func:`extract_video` collects that stream into the angles table
+(docs/file-formats.md), then goes back over the frames seen after a camera move but before a
+check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_glitches`) and
+frames off the constant-speed insertion (:func:`pipeline.extract.kinematics.flag_kinematics`),
+and pools how wide the array looks (:func:`array_width`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import pandas as pd
+from numpy.lib.stride_tricks import sliding_window_view
+
+from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
+from tympani.pipeline.extract.kinematics import KinematicsConfig, flag_kinematics
+from tympani.pipeline.extract.stream import (Check, Epoch, ExtractLog, frame_row, lens_undistorter, measure_frames,
+                                             try_measure)
+from tympani.vision.errors import InputError, one_line
+from tympani.vision.frames import Frame, FrameSource, open_frames, to_gray
+from tympani.vision.geometry import ElectrodeArray
+
+__all__ = [
+    "ANGLE_COLUMNS",
+    "Move",
+    "ViewChange",
+    "trial_name",
+    "extract_video",
+    "moves_to_go_over",
+    "remeasure_after_moves",
+    "flag_glitches",
+    "array_width",
+]
+
+#: The angles table's fixed columns, in order (docs/file-formats.md); extra columns follow them.
+ANGLE_COLUMNS: tuple[str, ...] = ("trial", "frame", "time_s", "theta_tip", "theta_bot", "theta_con", "ok", "reason")
+
+
+def trial_name(path: str | os.PathLike, trial: str | None = None) -> str:
+    """The trial name of a video: ``trial`` if given, else the file stem (folder name).
+
+    Raises
+    ------
+    InputError
+        The name is empty or would escape the output folder (contains a path separator).
+    """
+    p = Path(path)
+    name = trial if trial is not None else (p.name if p.is_dir() else p.stem)
+    name = str(name).strip()
+    if not name or name in (".", "..") or any(c in name for c in "/\\\0"):
+        raise InputError(p, f"unusable trial name {name!r} (empty or contains a path separator)")
+    return name
+
+
+def extract_video(
+    path: str | os.PathLike,
+    cfg: ExtractConfig,
+    *,
+    fps: float | None = None,
+    trial: str | None = None,
+    progress: bool = False,
+    steps: VisionSteps = VisionSteps(),
+) -> tuple[pd.DataFrame, Any]:
+    """Angles of every frame of one video.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Video file or folder of frames.
+    cfg : ExtractConfig
+        Settings.
+    fps : float, optional
+        Frame rate (frames/s); needed for a folder, overrides the file's clock for a video.
+    trial : str, optional
+        Trial name for the ``trial`` column (default: the file stem).
+    progress : bool
+        Per-frame progress bar on stderr.
+    steps : VisionSteps
+        The vision functions (default: :mod:`vision.registration`'s and :mod:`vision.angles`'s).
+
+    Returns
+    -------
+    table : DataFrame
+        One row per decoded frame: :data:`ANGLE_COLUMNS`, then the measurement's extra scalar
+        columns, then ``reg_epoch``. Failed frames have ``ok`` False, NaN angles and a
+        ``reason``. ``table.attrs`` holds ``registrations`` (:meth:`Epoch.record` of each,
+        with ``moved_at_frame`` when :func:`remeasure_after_moves` went back over the frames
+        before it), ``lost`` (:meth:`LostSpan.record` of the spans in which the registration
+        was lost, likewise), ``checks`` (``(frame, residual_px)``), ``warnings`` (decoder,
+        measurement, the camera moves whose frames :func:`remeasure_after_moves` went back
+        over, and the glitches :func:`flag_glitches` marked), ``timing_s`` (see
+        :class:`ExtractLog`), ``source`` and ``array_width`` (see :func:`array_width`).
+    registration : Registration
+        The first registration (the one frame 0 was measured with).
+
+    Raises
+    ------
+    InputError
+        Unreadable input, or no phantom found in the first frames.
+    """
+    name = trial_name(path, trial)
+    source = open_frames(path, fps=fps, decoder_threads=cfg.decoder_threads)
+    log = ExtractLog()
+    rows = [m.row for m in measure_frames(source, cfg, trial=name, log=log, progress=progress, keep_colour=False,
+                                          steps=steps)]
+    t0 = time.perf_counter()
+    changes = remeasure_after_moves(source, rows, log, cfg, name, steps=steps)
+    log.add_time("remeasure", time.perf_counter() - t0)
+    notes = [c.note() for c in changes if c.first is not None]
+    glitches = flag_glitches(rows, cfg.glitch_rad)
+    if glitches:
+        notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
+                     "median of its measured neighbours)")
+    if cfg.kinematics_tol_mm > 0:
+        runs, note = flag_kinematics(rows, KinematicsConfig(tol_mm=cfg.kinematics_tol_mm))
+        if note:
+            notes.append(note)
+    width = array_width(rows, cfg.array)
+    if width["warning"]:
+        notes.append(width["warning"])
+    table = pd.DataFrame(rows)
+    extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
+    table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
+    table["ok"] = table["ok"].astype(bool)
+    epoch_moved = {c.move.after.index: c.moved_at_frame for c in changes if c.move.after is not None}
+    span_moved = {c.move.seen_at: c.moved_at_frame for c in changes if c.move.after is None}
+    table.attrs.update(
+        registrations=[_with_move(e.record(), epoch_moved.get(e.index)) for e in log.epochs],
+        lost=[_with_move(s.record(), span_moved.get(s.frame) if s.ended != "registered" else None) for s in log.lost],
+        checks=[(c.frame, c.residual_px) for c in log.checks],
+        warnings=[*source.warnings, *log.warnings, *notes],
+        timing_s=log.timing_s,
+        source=source.info(),
+        array_width={k: v for k, v in width.items() if k != "warning"},
+    )
+    return table, log.first_registration
+
+
+def _with_move(record: dict, moved_at_frame: int | None) -> dict:
+    return record if moved_at_frame is None else {**record, "moved_at_frame": moved_at_frame}
+
+
+# --------------------------------------------------------------------------- camera moves
+
+
+@dataclass(frozen=True)
+class Move:
+    """A change of view that a failed check saw, possibly some frames after it happened.
+
+    Parameters
+    ----------
+    before : Epoch
+        The registration in force until then.
+    seen_at : int
+        The failed check's frame.
+    after : Epoch or None
+        The registration that followed (from ``seen_at`` on); None when none succeeded (a lost
+        span that did not end in a registration).
+    """
+
+    before: Epoch
+    seen_at: int
+    after: Epoch | None
+
+
+@dataclass(frozen=True)
+class ViewChange:
+    """What going back over a :class:`Move`'s frames found.
+
+    Parameters
+    ----------
+    move : Move
+        The move gone over.
+    first : int or None
+        The first frame the old registration no longer fits (the move), None when all fit.
+    fitted : int
+        Frames from ``first`` on measured again with the new registration.
+    """
+
+    move: Move
+    first: int | None
+    fitted: int
+
+    @property
+    def moved_at_frame(self) -> int:
+        """Where the view changed: ``first``, or the check that saw it when every frame fitted."""
+        return self.first if self.first is not None else self.move.seen_at
+
+    def note(self) -> str:
+        """One line on the frames gone over (for a change found, ``first`` not None)."""
+        first, seen_at = self.first, self.move.seen_at
+        span = f"at frame {first} (seen by the check at {seen_at}); frames {first}-{seen_at - 1}"
+        if self.move.after is None:
+            return f"view changed {span} marked not ok (no registration fits them)"
+        if self.fitted == seen_at - first:
+            return f"camera moved {span} measured again with the new registration"
+        return (f"camera moved {span}: {self.fitted} measured again with the new registration, "
+                f"{seen_at - first - self.fitted} marked not ok (they fit neither registration)")
+
+
+def moves_to_go_over(log: ExtractLog) -> list[Move]:
+    """The moves of a video, in the order they were seen: each re-registration after a failed
+    check, and each lost span that did not end in a registration."""
+    moves = [Move(log.epochs[e.index - 1], e.frame, e) for e in log.epochs if e.trigger is not None]
+    moves += [Move(log.epochs[s.epoch], s.frame, None) for s in log.lost if s.ended != "registered"]
+    return sorted(moves, key=lambda m: m.seen_at)
+
+
+def last_good_frame(move: Move, checks: list[Check], cfg: ExtractConfig) -> int:
+    """The last frame known to fit ``move.before``: the last it was registered on, or its last
+    passing check before the move was seen."""
+    threshold = cfg.recheck_threshold_px(move.before.registration)
+    good = move.before.frame + move.before.n_frames_used - 1
+    return max([good, *(c.frame for c in checks if good < c.frame < move.seen_at and c.residual_px <= threshold)])
+
+
+def _frames_between(source: FrameSource, good: int, seen_at: int) -> Iterator[Frame]:
+    """The frames after ``good`` and before ``seen_at``, decoded again from the start (seeking
+    is not frame-exact in every codec)."""
+    frames = iter(source)
+    try:
+        for frame in frames:
+            if frame.index <= good:
+                continue
+            if frame.index >= seen_at:
+                break
+            yield frame
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
+
+
+class _Lens:
+    """What checks see of a grey frame: the frame undistorted by ``calibration`` (its
+    undistortion made on the first frame), or the frame itself without one."""
+
+    def __init__(self, calibration: Any, source: FrameSource) -> None:
+        self.calibration = calibration
+        self.source = source
+        self.undistort: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def seen(self, gray: np.ndarray) -> np.ndarray:
+        if self.calibration is None:
+            return gray
+        if self.undistort is None:
+            self.undistort = lens_undistorter(self.calibration, self.source, gray.shape)
+        return self.undistort(gray)
+
+
+def _go_over(source: FrameSource, rows: list[dict], at: dict[int, int], move: Move, good: int, cfg: ExtractConfig,
+             steps: VisionSteps, trial: str, lens: _Lens) -> ViewChange:
+    """Check the frames after ``good`` against the old registration; from the first that fails,
+    measure each with the new one when it fits, else mark it not ok (rows replaced in place)."""
+    old = move.before.registration
+    threshold = cfg.recheck_threshold_px(old)
+    new = move.after
+    new_threshold = math.nan if new is None else cfg.recheck_threshold_px(new.registration)
+    epoch = move.before.index if new is None else new.index
+    first, fitted = None, 0
+    for frame in _frames_between(source, good, move.seen_at):
+        gray = to_gray(frame.image)
+        seen = lens.seen(gray)  # the ideal image when there is a lens (the plans sample gray)
+        if first is None:
+            if float(steps.check(seen, old, cfg.phantom)) <= threshold:  # NaN: moved
+                continue
+            first = frame.index
+        if new is not None and float(steps.check(seen, new.registration, cfg.phantom)) <= new_threshold:
+            m = try_measure(steps, gray, new.plan, cfg)
+            result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
+                      if isinstance(m, Exception) else m.to_row())
+            fitted += 1
+        else:  # the camera still moving, the view blocked, or no new registration
+            result = {"ok": False, "reason": f"the view changed at frame {first} (seen by the check at "
+                                             f"{move.seen_at}) and no registration fits this frame"}
+        rows[at[frame.index]] = frame_row(trial, frame, result, epoch)
+    return ViewChange(move, first, fitted)
+
+
+def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig, trial: str,
+                          *, steps: VisionSteps = VisionSteps()) -> list[ViewChange]:
+    """Go back over the frames seen after the camera moved but before a check noticed it.
+
+    A check every ``cfg.recheck_every`` frames finds a move late, so the frames between the move
+    and the check were measured with the old pose. For each failed check that led to a new
+    registration, and for each lost span that did not end in one (:func:`moves_to_go_over`),
+    the frames after the last known-good one (the old registration's own frames or its last
+    passing check) are decoded again, in order, and checked against the old registration. From
+    the first that fails on (the move), each frame is measured with the new registration, and
+    gets its ``reg_epoch``, when it fits that one; otherwise (the camera still moving, the view
+    blocked, or no new registration) it is marked not ok.
+
+    Parameters
+    ----------
+    source : FrameSource
+        The video, decoded again from the start (seeking is not frame-exact in every codec).
+    rows : list of dict
+        The frame rows of :func:`~pipeline.extract.stream.measure_frames`, in frame order;
+        replaced in place.
+    log : ExtractLog
+        Its epochs, checks and lost spans.
+    cfg : ExtractConfig
+        Settings (check threshold, phantom, measurement).
+    trial : str
+        Trial name of the rows.
+    steps : VisionSteps
+        The vision functions.
+
+    Returns
+    -------
+    list of ViewChange
+        One per move whose frames were gone over (moves with no frame between the last
+        known-good one and the check are left out).
+    """
+    at = {int(r["frame"]): i for i, r in enumerate(rows)}
+    lens = _Lens(cfg.calibration, source)
+    changes = []
+    for move in moves_to_go_over(log):
+        good = last_good_frame(move, log.checks, cfg)
+        if good + 1 >= move.seen_at:
+            continue
+        changes.append(_go_over(source, rows, at, move, good, cfg, steps, trial, lens))
+    return changes
+
+
+# --------------------------------------------------------------------------- glitches, array width
+
+
+def array_width(rows: list[dict], array: ElectrodeArray, *, tolerance: float = 0.1, min_frames: int = 10) -> dict:
+    """How wide the array looks against the model the measurement assumes.
+
+    The measurement reads the gap to the wall from the modelled diameters
+    (:class:`~vision.geometry.ElectrodeArray`), so an array wider or narrower than its model
+    biases every gap, and with them where contact begins (theta_bot). Each measured frame's
+    ``width_ratio`` (seen width between the two edges over the modelled width; about 1.01 for
+    rendered arrays of the modelled size, and 0.86 and 1.21 for arrays 15 % narrower and 20 %
+    wider) is pooled here.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Frame rows with ``ok`` and ``width_ratio`` (dimensionless; NaN or missing: not measured).
+    array : ElectrodeArray
+        The modelled array (its diameters, mm, are named in the warning).
+    tolerance : float
+        Largest ``|median - 1|`` (dimensionless) without a warning.
+    min_frames : int
+        Fewest frames with a ratio for a verdict.
+
+    Returns
+    -------
+    dict
+        ``median`` (dimensionless, NaN without frames), ``frames`` (how many had a ratio) and
+        ``warning`` (a sentence, or "" when the array matches its model or too few frames tell).
+    """
+    ratios = np.array([float(r["width_ratio"]) for r in rows if r.get("ok") and r.get("width_ratio") is not None],
+                      dtype=float)
+    ratios = ratios[np.isfinite(ratios)]
+    median = float(np.median(ratios)) if len(ratios) else math.nan
+    warning = ""
+    if len(ratios) >= min_frames and abs(median - 1.0) > tolerance:
+        warning = (f"the array looks {abs(median - 1.0):.0%} {'wider' if median > 1.0 else 'narrower'} than the modelled "
+                   f"one ({array.tip_diameter_mm:g} mm at the tip, {array.base_diameter_mm:g} mm at the base; median of "
+                   f"{len(ratios)} frames): its gaps to the wall, and so theta_bot, are biased; give its diameters "
+                   "(--array-diameters TIP,BASE)")
+    return {"median": median, "frames": int(len(ratios)), "warning": warning}
+
+
+def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.ndarray:
+    """``out[j] = median(x[max(0, j - before) : j - before + width])`` for ``j < n_out``: a
+    running median whose windows are clipped to ``x`` at its ends (values in ``x``'s unit).
+    The windows inside ``x`` are taken in one call; only the clipped ones at the ends loop."""
+    out = np.empty(n_out)
+    first, last = before, min(n_out - 1, len(x) - width + before)  # the j whose window lies inside x
+    if last >= first:
+        out[first : last + 1] = np.median(sliding_window_view(x, width)[: last - first + 1], axis=1)
+    for j in (*range(min(first, n_out)), *range(max(last + 1, first), n_out)):
+        out[j] = np.median(x[max(0, j - before) : j - before + width])
+    return out
+
+
+def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int:
+    """Mark isolated outliers in time as not ok, in place.
+
+    The angles move smoothly from frame to frame, or step (theta_bot when a contact run forms or
+    breaks). A frame measured far from its neighbours on both sides is a measurement glitch: a
+    few edges misread can move theta_bot by radians through the contact run's definition. Over
+    a video's measured frames in order, a frame is marked when its ``theta_tip`` or
+    ``theta_bot`` lies from the running median of ``2 * half_window + 1`` measured frames
+    centred on it (fewer at the ends) by more than ``max_rad``, and by more than ``2 *
+    half_window`` typical frame-to-frame steps (the median absolute step over the 11 frames
+    around it): on a steep ramp (a fast insertion) a spike pulls its neighbours' medians by up
+    to ``half_window`` steps. A running median leaves ramps and steps as they are and removes
+    spikes up to ``half_window`` frames long. Marked rows get ``ok`` False, NaN angles and the
+    reason.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, ``theta_tip``, ``theta_bot`` rad,
+        ``theta_con``, ``reason``); changed in place.
+    max_rad : float
+        Least distance (rad) from the running median that marks a frame; 0 or less does
+        nothing.
+    half_window : int
+        Measured frames on each side in the median.
+
+    Returns
+    -------
+    int
+        Frames marked.
+    """
+    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+    if max_rad <= 0 or len(ok) < 2 * half_window + 1:
+        return 0
+    marked = np.zeros(len(ok), dtype=bool)
+    why = [""] * len(ok)
+    for key in ("theta_tip", "theta_bot"):
+        x = np.array([float(rows[i][key]) for i in ok])
+        med = _window_medians(x, half_window, 2 * half_window + 1, len(x))
+        typical = _window_medians(np.abs(np.diff(x)), 5, 10, len(x))  # the 10 steps among the 11 frames around
+        off = np.abs(x - med)
+        far = off > np.maximum(max_rad, 2 * half_window * typical)
+        for j in np.flatnonzero(far & ~marked):
+            why[j] = f"glitch: {key} {x[j]:.3f} rad, {off[j]:.2f} rad from its neighbours' median"
+        marked |= far
+    for j in np.flatnonzero(marked):
+        rows[ok[j]].update(ok=False, reason=why[j], theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
+    return int(marked.sum())
+
