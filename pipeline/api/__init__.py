@@ -16,16 +16,16 @@ diagnosis). The names below are the main entry points, one per step of the data 
 Everything else is importable from the subpackages.
 """
 
+from tympani.pipeline.diagnosis.analysis import diagnose
+from tympani.pipeline.diagnosis.config import DiagnosisConfig
 from tympani.pipeline.extract.batch import extract_batch
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.manifest import read_manifest
 from tympani.pipeline.extract.video import extract_video
+from tympani.pipeline.force.sync import SyncConfig, sync_manifest, sync_trial
 from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds
-from tympani.pipeline.diagnosis.analysis import diagnose
-from tympani.pipeline.diagnosis.config import DiagnosisConfig
 from tympani.pipeline.model.identify import fit_synced
 from tympani.pipeline.run import RunConfig, run_pipeline
-from tympani.pipeline.force.sync import SyncConfig, sync_manifest, sync_trial
 from tympani.vision.angles import MeasureConfig, measure_frame, prepare_measurement
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
 from tympani.vision.registration import RegistrationConfig, register
