@@ -1,0 +1,239 @@
+"""Blind evaluation of the extraction on videos of renderer C (``tympani evaluate-extraction``).
+
+Renderer C (:mod:`tympani.pipeline.synthetic.renderer_c`) was written independently of tympani's
+vision, and tympani's thresholds were not tuned on it. Each seed draws a video (frame size, scale,
+the nuisances' strengths), renders it with its exact truth, extracts it as ``tympani extract``
+does and scores every frame against the truth:
+
+- *measured*: the share of frames marked ``ok``;
+- *grossly wrong*: a frame marked ``ok`` whose ``theta_tip`` is off by more than 0.3 rad or whose
+  ``theta_con`` is off by more than 0.5 rad, counted among the frames where the array touches
+  the outer wall (contact frames) — a wrong answer that says it is right;
+- the medians of |error| over the measured frames (``theta_con`` over measured contact frames);
+- the registration's centre (px) and scale (%) errors against the renderer's pose.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tympani.pipeline.extract.config import ExtractConfig
+from tympani.pipeline.extract.video import extract_video
+from tympani.pipeline.io import atomic_write_csv
+from tympani.pipeline.synthetic.renderer_c import NUISANCE_KEYS, render_video
+
+#: How the nuisances of a video are drawn: none; each off with probability 0.3, else of strength
+#: U(0.1, 1); every one at U(0.3, 1) with bubbles at U(0.5, 1) and doubled walls in 60 % of videos.
+NUISANCE_MODES = ("clean", "random", "harsh")
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Settings of the extraction evaluation.
+
+    Parameters
+    ----------
+    nuisance : str
+        One of :data:`NUISANCE_MODES`.
+    frames : int
+        Frames per video (30 fps; the insertion runs from 2 to 17 mm deep over the video).
+    gross_tip_rad, gross_con_rad : float
+        A measured frame is grossly wrong beyond these |errors| (rad) of ``theta_tip`` or
+        ``theta_con``.
+    """
+
+    nuisance: str = "random"
+    frames: int = 30
+    gross_tip_rad: float = 0.3
+    gross_con_rad: float = 0.5
+
+
+@dataclass(frozen=True)
+class VideoCase:
+    """What one seed draws: the frame size (px), the scale (px/mm, None: the renderer's own draw)
+    and each nuisance's strength (0–1)."""
+
+    seed: int
+    size: tuple[int, int]
+    px_per_mm: float | None
+    nuisance: dict[str, float]
+
+
+@dataclass(frozen=True)
+class VideoScore:
+    """The scores of one video (angles in rad; NaN where no frame qualifies)."""
+
+    seed: int
+    width_px: int
+    px_per_mm: float
+    doubled_walls: float
+    bubbles: float
+    frames: int
+    measured: int
+    contact_frames: int
+    gross_contact: int
+    gross: int
+    tip_median_rad: float
+    bot_median_rad: float
+    con_median_rad: float
+    centre_error_px: float
+    scale_error_pct: float
+    mirror_ok: bool
+    reasons: str
+    error: str = ""
+
+
+def draw_case(seed: int, mode: str) -> VideoCase:
+    """The video a seed stands for: 640×480 or 800×600 by parity, 15–20 px/mm in 40 % of videos
+    (else the renderer's draw), and nuisances as ``mode`` says (:data:`NUISANCE_MODES`)."""
+    if mode not in NUISANCE_MODES:
+        raise ValueError(f"unknown nuisance mode {mode!r}; choose from {', '.join(NUISANCE_MODES)}")
+    rng = np.random.default_rng(seed)
+    size = [(640, 480), (800, 600)][seed % 2]
+    px_per_mm = float(rng.uniform(15, 20)) if rng.random() < 0.4 else None
+    if mode == "clean":
+        nuisance = {k: 0.0 for k in NUISANCE_KEYS}
+    elif mode == "random":
+        nuisance = {k: (0.0 if rng.random() < 0.3 else float(rng.uniform(0.1, 1.0))) for k in NUISANCE_KEYS}
+    else:
+        nuisance = {k: float(rng.uniform(0.3, 1.0)) for k in NUISANCE_KEYS}
+        nuisance["bubbles"] = float(rng.uniform(0.5, 1.0))
+        nuisance["doubled_walls"] = float(rng.uniform(0.0, 1.0)) if rng.random() < 0.6 else 0.0
+    return VideoCase(seed, size, px_per_mm, nuisance)
+
+
+def _median(x: pd.Series) -> float:
+    return float(x.median()) if len(x) else float("nan")
+
+
+def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose: dict, registration_pose,
+                cfg: EvaluationConfig) -> tuple[VideoScore, pd.DataFrame]:
+    """Score an extracted angles table against the renderer's truth.
+
+    Parameters
+    ----------
+    case : VideoCase
+        The video.
+    table : DataFrame
+        The angles table of :func:`extract_video`.
+    truth : DataFrame
+        The renderer's truth (``frame``, ``theta_tip``, ``theta_bot``, ``theta_con`` in rad,
+        ``in_contact``).
+    pose : dict
+        The renderer's pose (``centre_x_px``, ``centre_y_px``, ``px_per_mm``, ``mirrored``).
+    registration_pose : CameraPose
+        The pose tympani registered.
+    cfg : EvaluationConfig
+        Gross-error thresholds.
+
+    Returns
+    -------
+    score : VideoScore
+    frames : DataFrame
+        The table joined with the truth (``*_t`` columns) and a ``gross`` column.
+    """
+    m = table.merge(truth[["frame", "theta_tip", "theta_bot", "theta_con", "in_contact"]], on="frame",
+                    suffixes=("", "_t"))
+    ok = m["ok"].astype(bool)
+    contact = m["in_contact"].astype(bool)
+    tip, bot, con = ((m[c] - m[f"{c}_t"]).abs() for c in ("theta_tip", "theta_bot", "theta_con"))
+    gross = ok & ((tip > cfg.gross_tip_rad) | (con > cfg.gross_con_rad))
+    score = VideoScore(
+        seed=case.seed, width_px=case.size[0], px_per_mm=round(float(pose["px_per_mm"]), 2),
+        doubled_walls=case.nuisance.get("doubled_walls", 0.0), bubbles=case.nuisance.get("bubbles", 0.0),
+        frames=len(m), measured=int(ok.sum()), contact_frames=int(contact.sum()),
+        gross_contact=int((gross & contact).sum()), gross=int(gross.sum()),
+        tip_median_rad=_median(tip[ok]), bot_median_rad=_median(bot[ok]), con_median_rad=_median(con[ok & contact]),
+        centre_error_px=float(np.hypot(registration_pose.centre_x_px - pose["centre_x_px"],
+                                       registration_pose.centre_y_px - pose["centre_y_px"])),
+        scale_error_pct=float(100.0 * (registration_pose.px_per_mm / pose["px_per_mm"] - 1.0)),
+        mirror_ok=bool(registration_pose.mirrored == pose["mirrored"]),
+        reasons="; ".join(sorted(set(m.loc[~ok, "reason"].astype(str).str[:50]))),
+    )
+    return score, m.assign(gross=gross)
+
+
+def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig = EvaluationConfig()) -> VideoScore:
+    """Render seed's video into ``out_dir`` (``v<seed>.mp4`` with ``v<seed>_truth.csv``), extract
+    it, score it and write its per-frame table (``v<seed>_frames.csv``). A video tympani cannot
+    extract at all scores no frame measured, with the error."""
+    case = draw_case(seed, cfg.nuisance)
+    out = Path(out_dir)
+    path = out / f"v{seed}.mp4"
+    truth, info = render_video(path, seed, n_frames=cfg.frames, size=case.size, px_per_mm=case.px_per_mm,
+                               nuisance=case.nuisance)
+    atomic_write_csv(out / f"v{seed}_truth.csv", truth)
+    pose = info["pose"]
+    try:
+        table, registration = extract_video(path, ExtractConfig(), fps=30.0)
+    except Exception as exc:  # a refusal of the whole video is a result too
+        n = len(truth)
+        return VideoScore(seed, case.size[0], round(float(pose["px_per_mm"]), 2),
+                          case.nuisance.get("doubled_walls", 0.0), case.nuisance.get("bubbles", 0.0), n, 0,
+                          int(truth["in_contact"].astype(bool).sum()), 0, 0, *([float("nan")] * 5), False, "",
+                          error=" ".join(str(exc).split())[:200])
+    score, frames = score_video(case, table, truth, pose, registration.pose, cfg)
+    atomic_write_csv(out / f"v{seed}_frames.csv", frames)
+    return score
+
+
+def _evaluate_one(args: tuple[int, str, EvaluationConfig]) -> VideoScore:
+    return evaluate_video(*args)
+
+
+def evaluate_extraction(seeds: range | list[int], out_dir: str | os.PathLike,
+                        cfg: EvaluationConfig = EvaluationConfig(), *, workers: int = 1) -> pd.DataFrame:
+    """:func:`evaluate_video` of every seed (in ``workers`` processes), one row a video."""
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    jobs = [(int(s), str(out_dir), cfg) for s in seeds]
+    if workers <= 1:
+        scores = [_evaluate_one(j) for j in jobs]
+    else:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            scores = list(pool.map(_evaluate_one, jobs))
+    return pd.DataFrame([asdict(s) for s in scores])
+
+
+def summarise(results: pd.DataFrame) -> dict[str, float]:
+    """The evaluation's figures over all videos: ``gross_contact_share`` (grossly wrong among the
+    contact frames), ``measured_share`` (among all frames), the medians over videos of the
+    videos' median |errors| (rad), the largest registration errors, and how many videos failed."""
+    done = results[results["error"] == ""]
+    contact = int(done["contact_frames"].sum())
+    return {
+        "videos": int(len(results)),
+        "failed": int((results["error"] != "").sum()),
+        "frames": int(results["frames"].sum()),
+        "measured_share": float(results["measured"].sum() / max(int(results["frames"].sum()), 1)),
+        "contact_frames": contact,
+        "gross_contact": int(done["gross_contact"].sum()),
+        "gross_contact_share": float(done["gross_contact"].sum() / max(contact, 1)),
+        "tip_median_rad": float(done["tip_median_rad"].median()),
+        "bot_median_rad": float(done["bot_median_rad"].median()),
+        "con_median_rad": float(done["con_median_rad"].median()),
+        "centre_error_max_px": float(done["centre_error_px"].max()),
+        "scale_error_max_pct": float(done["scale_error_pct"].abs().max()),
+        "mirror_wrong": int((~done["mirror_ok"].astype(bool)).sum()),
+    }
+
+
+def format_summary(summary: dict[str, float]) -> str:
+    """The summary in a few lines of text."""
+    s = summary
+    return "\n".join([
+        f"videos {s['videos']} ({s['failed']} not extracted), frames {s['frames']}",
+        f"measured {100 * s['measured_share']:.1f} % of frames",
+        f"grossly wrong but marked ok: {s['gross_contact']} of {s['contact_frames']} contact frames "
+        f"({100 * s['gross_contact_share']:.1f} %)",
+        f"median |error| (median of the videos' medians): theta_tip {s['tip_median_rad']:.4f} rad, "
+        f"theta_bot {s['bot_median_rad']:.4f} rad, theta_con {s['con_median_rad']:.4f} rad",
+        f"registration: centre error max {s['centre_error_max_px']:.2f} px, scale error max "
+        f"{s['scale_error_max_pct']:.2f} %, mirror wrong in {s['mirror_wrong']}",
+    ])

@@ -1,0 +1,59 @@
+"""``tympani evaluate-extraction``: videos of renderer C scored against their truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tympani.pipeline.extract.evaluation import (
+    EvaluationConfig,
+    VideoCase,
+    draw_case,
+    evaluate_extraction,
+    score_video,
+    summarise,
+)
+from tympani.vision.geometry import CameraPose
+
+
+def test_cases_are_drawn_from_the_seed_alone():
+    assert draw_case(7, "harsh") == draw_case(7, "harsh")
+    clean, harsh = draw_case(8, "clean"), draw_case(8, "harsh")
+    assert set(clean.nuisance.values()) == {0.0} and clean.size == (640, 480)
+    assert min(v for k, v in harsh.nuisance.items() if k != "doubled_walls") >= 0.3
+    with pytest.raises(ValueError, match="unknown nuisance mode"):
+        draw_case(1, "rainy")
+
+
+def test_a_wrong_frame_marked_ok_counts_as_gross_only_there():
+    """Five frames: right, tip 0.4 rad off (gross), theta_con 0.6 rad off (gross, not in contact),
+    refused, right in contact."""
+    truth = pd.DataFrame({"frame": range(5), "theta_tip": [1.0, 2.0, 3.0, 4.0, 5.0], "theta_bot": [1.0, 2.0, 2.5, 3.5, 4.0],
+                          "theta_con": [0.0, 0.0, 0.5, 0.5, 1.0], "in_contact": [False, True, False, True, True]})
+    table = truth.drop(columns="in_contact").assign(ok=[True, True, True, False, True], reason="")
+    table.loc[1, "theta_tip"] += 0.4
+    table.loc[2, "theta_con"] += 0.6
+    table.loc[3, ["theta_tip", "theta_bot", "theta_con"]] = np.nan
+    table.loc[4, "theta_tip"] += 0.01
+    pose = {"centre_x_px": 100.0, "centre_y_px": 50.0, "px_per_mm": 20.0, "mirrored": False}
+    registered = CameraPose(centre_x_px=103.0, centre_y_px=54.0, rotation_rad=0.0, px_per_mm=20.2, mirrored=False)
+    case = VideoCase(1, (640, 480), None, {"bubbles": 0.5})
+    score, frames = score_video(case, table, truth, pose, registered, EvaluationConfig())
+    assert (score.frames, score.measured, score.contact_frames, score.gross, score.gross_contact) == (5, 4, 3, 2, 1)
+    assert frames["gross"].tolist() == [False, True, True, False, False]
+    assert score.tip_median_rad == pytest.approx(0.005) and score.con_median_rad == pytest.approx(0.0)
+    assert score.centre_error_px == pytest.approx(5.0) and score.scale_error_pct == pytest.approx(1.0)
+    assert score.mirror_ok and score.bubbles == 0.5
+
+
+def test_a_clean_video_end_to_end(tmp_path):
+    """Seed 200, no nuisances: measured 30 of 30 frames, tip median 0.0031 rad, centre 0.011 px,
+    scale 0.03 %."""
+    results = evaluate_extraction([200], tmp_path, EvaluationConfig(nuisance="clean", frames=30))
+    summary = summarise(results)
+    assert (summary["videos"], summary["failed"], summary["frames"]) == (1, 0, 30)
+    assert summary["measured_share"] == 1.0 and summary["gross_contact"] == 0
+    assert summary["tip_median_rad"] < 0.006 and summary["con_median_rad"] < 0.04
+    assert summary["centre_error_max_px"] < 0.05 and summary["scale_error_max_pct"] < 0.1
+    assert {p.name for p in tmp_path.iterdir()} >= {"v200.mp4", "v200_truth.csv", "v200_frames.csv"}
