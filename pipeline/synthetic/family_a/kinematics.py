@@ -151,7 +151,7 @@ def _entry_angle(depth_mm: np.ndarray, phantom: Phantom) -> np.ndarray:
 
 
 def interp_angles(depth_mm: np.ndarray, table: tuple[np.ndarray, np.ndarray, np.ndarray],
-                   phantom: Phantom) -> tuple[np.ndarray, np.ndarray]:
+                  phantom: Phantom) -> tuple[np.ndarray, np.ndarray]:
     """True ``(theta_tip, theta_bot)`` (rad) at depths (mm), interpolated in a kinematics table.
 
     Parameters

@@ -176,7 +176,7 @@ def arc_nodes(theta_bot: np.ndarray, theta_tip: np.ndarray, params: FrictionPara
 
 
 def physical_effect(state: TrialState, force_g: np.ndarray,
-              modified: Callable[[ContactArc, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+                    modified: Callable[[ContactArc, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
     """Base force + (quadrature with the effect - quadrature without it), on rows in contact.
 
     ``modified(arc, rows, mu)`` returns the force (g) with the effect on the contact rows.
@@ -186,7 +186,7 @@ def physical_effect(state: TrialState, force_g: np.ndarray,
     if not contact.any():
         return out
     arc = arc_nodes(state.theta_bot[contact], state.theta_tip[contact], state.params, state.pressure_scale[contact],
-               state.phantom)
+                    state.phantom)
     mu = stribeck(state.speed_mm_s[contact], state.params)
     base = arc.force_g(arc.p, mu, 1.0, state.params.contact_width_mm)
     out[contact] += modified(arc, contact, mu) - base
