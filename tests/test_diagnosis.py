@@ -63,7 +63,7 @@ def test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment(stro
     verdict is ambiguous, lag first, and the experiment recommended (a retraction) has the two
     predict opposite signs."""
     truth, d = strong["sensor_lag"]
-    assert truth["detectable"]
+    assert truth.detectable
     assert d.verdict == "ambiguous" and d.decision.tied[:2] == ("sensor_lag", "hydrodynamic_lift")
     assert d.decision.variants["hydrodynamic_lift"].used
     best = d.experiments[0]
@@ -75,7 +75,7 @@ def test_lag_and_a_squeezing_film_are_told_apart_only_by_another_experiment(stro
 @pytest.mark.parametrize("effect", ["hydrodynamic_lift", "viscous_drag", "sensor_drift"])
 def test_strong_effects_are_identified(strong, effect):
     truth, d = strong[effect]
-    assert truth["detectable"]
+    assert truth.detectable
     assert d.verdict == "identified" and d.effect == effect, d.decision.reason
     assert d.gap.shrink_pct > 15  # held-out RMSE against the measured force (includes the noise floor)
     assert d.ranking[0].candidate == effect

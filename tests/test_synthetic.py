@@ -48,8 +48,8 @@ def _clean(effect: str | None, *, seed: int = 3, trials: int = 3) -> pd.DataFram
     synced, truth = synthetic_dataset(np.random.default_rng(seed), effect, noise=QUIET, trials=trials,
                                       variability=Variability(paired=True),
                                       effect_params=FIXED.get(effect) if effect else None)
-    clean = truth["tables"]["clean"]
-    stop = {d["trial"]: d["t_stop_s"] for d in truth["trials"]}
+    clean = truth.tables.clean
+    stop = {d.trial: d.t_stop_s for d in truth.trials}
     df = synced.assign(base=clean["force_base_g"].to_numpy(), eff=clean["force_effect_g"].to_numpy())
     df["gap"] = df["eff"] - df["base"]
     df["t_stop"] = df["trial"].map(stop)
@@ -86,9 +86,9 @@ def test_none_and_strength_zero_change_nothing():
     for name in HIDDEN_EFFECTS:
         synced, truth = synthetic_dataset(np.random.default_rng(1), name, strength=0.0, noise=QUIET, trials=1,
                                           speeds_mm_s=(0.5, 7.5))
-        clean = truth["tables"]["clean"]
+        clean = truth.tables.clean
         np.testing.assert_allclose(clean["force_effect_g"], clean["force_base_g"], atol=1e-9, err_msg=name)
-        assert truth["gap_rms_g"] < 1e-9 and not truth["detectable"]
+        assert truth.gap_rms_g < 1e-9 and not truth.detectable
 
 
 def test_lift_relative_drop_grows_with_speed_at_every_theta_con_and_persists_in_the_dwell():
@@ -167,10 +167,10 @@ def test_pressure_profile_is_a_shape_change_independent_of_speed():
 def test_gap_against_noise_at_strength_one_is_reported_and_detectable():
     for name in HIDDEN_EFFECTS:
         _, truth = synthetic_dataset(np.random.default_rng(11), name, trials=2)
-        assert truth["effect"] == name and truth["gap_to_noise"] > 3.0, (name, truth["gap_to_noise"])
-        assert truth["detectable"]
-        assert 0.02 < truth["noise_rms_g"] < 0.08
-        json.dumps({k: v for k, v in truth.items() if k != "tables"})  # JSON-ready apart from the tables
+        assert truth.effect == name and truth.gap_to_noise > 3.0, (name, truth.gap_to_noise)
+        assert truth.detectable
+        assert 0.02 < truth.noise_rms_g < 0.08
+        json.dumps(truth.to_json())  # JSON-ready apart from the tables
 
 
 # --------------------------------------------------------------------------- no inverse crime
@@ -208,7 +208,7 @@ def test_paper_case_hits_the_papers_drops():
     drops = peak_force_drop(synced).set_index("speed_mm_s")["change_pct"]
     for speed, target in PAPER_DROPS_PCT.items():
         assert abs(drops[speed] - target) <= 3.0, (speed, drops[speed])
-    base = pd.DataFrame(truth["paper"]["base_model"]).set_index("speed_mm_s")["change_pct"]
+    base = truth.paper.base_model.set_index("speed_mm_s")["change_pct"]
     assert base.abs().max() <= 2.0
     assert sorted(synced["speed_mm_s"].unique()) == list(SPEEDS)
     assert synced.groupby("speed_mm_s")["trial"].nunique().eq(10).all()
@@ -253,10 +253,10 @@ def test_dataset_layout_noise_and_reproducibility():
         assert held == pytest.approx(1.0, abs=0.05)  # the dwell
         assert (trial["theta_con"].iloc[:25] == 0).all()  # samples before contact
         assert (trial["theta_con"] >= 0).all()
-    resid = a["force_g"].to_numpy() - truth["tables"]["clean"]["force_effect_g"].to_numpy()
-    r = resid[: truth["trials"][0]["n_samples"]]
+    resid = a["force_g"].to_numpy() - truth.tables.clean["force_effect_g"].to_numpy()
+    r = resid[: truth.trials[0].n_samples]
     assert np.corrcoef(r[:-1], r[1:])[0, 1] > 0.3  # correlated, not only white noise
-    speeds = {d["trial"]: d["actual_speed_mm_s"] / d["speed_mm_s"] for d in truth["trials"]}
+    speeds = {d.trial: d.actual_speed_mm_s / d.speed_mm_s for d in truth.trials}
     assert all(0.98 <= s <= 1.02 for s in speeds.values())
 
 

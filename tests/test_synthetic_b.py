@@ -20,6 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from tympani.pipeline.synthetic import family_b as sb
+from tympani.pipeline.synthetic.family_b import draws, effects, phantom
 
 SEED = 1
 COLUMNS = ["trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con",
@@ -27,15 +28,15 @@ COLUMNS = ["trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot",
 
 
 @functools.lru_cache(maxsize=None)
-def gen(effect: str | None, seed: int = SEED, strength: float = 1.0) -> tuple[pd.DataFrame, dict]:
+def gen(effect: str | None, seed: int = SEED, strength: float = 1.0) -> tuple[pd.DataFrame, sb.GeneratedTruth]:
     return sb.generate(effect, seed, strength=strength)
 
 
-def phases(df: pd.DataFrame, truth: dict) -> tuple[pd.Series, pd.Series, pd.Series]:
+def phases(df: pd.DataFrame, truth: sb.GeneratedTruth) -> tuple[pd.Series, pd.Series, pd.Series]:
     """Boolean masks: before motion, during motion, after the stop (dwell)."""
-    info = truth["base"]["trials"]
-    on = df["trial"].map({k: v["t_motion_start_s"] for k, v in info.items()})
-    off = df["trial"].map({k: v["t_motion_stop_s"] for k, v in info.items()})
+    info = truth.base.trials
+    on = df["trial"].map({k: v.t_motion_start_s for k, v in info.items()})
+    off = df["trial"].map({k: v.t_motion_stop_s for k, v in info.items()})
     return df["time_s"] < on, (df["time_s"] > on) & (df["time_s"] < off), df["time_s"] >= off
 
 
@@ -63,14 +64,14 @@ def test_walls_lie_half_the_channel_width_from_the_backbone():
     """The phantom's walls are offset by w/2 each side, w = min(1.5, 0.38 r) the full width."""
     g = sb.geometry()
     ph = g.phantom
-    th = np.linspace(ph.theta_start + 0.05, sb.THETA_LOOKUP_MAX - 0.1, 2000)  # look-up range
+    th = np.linspace(ph.theta_start + 0.05, phantom.THETA_LOOKUP_MAX - 0.1, 2000)  # look-up range
     th = th[np.abs(th - math.radians(ph.corner_deg)) > 0.05]  # away from the corner
-    p, _, n = sb._backbone(ph, th)
+    p, _, n = phantom._backbone(ph, th)
     for curve, sign in ((g.outer, 1.0), (g.inner, -1.0)):
         sd, _ = curve.signed_distance(p + sign * ph.half_width(th)[:, None] * n)
         assert np.abs(sd).max() < 1e-4
     # channel 1.5 mm wide at the start: outer and inner wall 1.5 mm apart there
-    p0, _, n0 = sb._backbone(ph, np.array([ph.theta_start + 0.05]))
+    p0, _, n0 = phantom._backbone(ph, np.array([ph.theta_start + 0.05]))
     sd_o, _ = g.outer.signed_distance(p0 - 0.75 * n0)
     assert abs(sd_o[0] + 1.5) < 1e-3
     # neighbouring turns keep a wall of at least 0.15 mm between them (a check on the phantom's
@@ -109,10 +110,10 @@ def test_no_trial_crosses_either_wall():
     g = sb.geometry()
     worst = {"tip_outer": 1.0, "tip_inner": 1.0, "body_entry": 1.0}
     for seed in range(5):
-        ds = sb._draw_dataset(seed)
+        ds = draws.draw_dataset(seed)
         for iv in range(5):
             for it in range(10):
-                tr = sb._draw_trial(seed, iv, it, 1.0, ds)
+                tr = draws.draw_trial(seed, iv, it, 1.0, ds)
                 p = sb.tip_path(g, tr["e_lat_mm"], tr["tilt_rad"], tr["kappa0_per_mm"])
                 c = sb.wall_clearance(g, p, tr["final_depth_mm"])
                 worst = {k: min(v, c[k]) for k, v in worst.items()}
@@ -156,16 +157,16 @@ def test_columns_types_and_truth_keys():
     assert sorted(df["speed_mm_s"].unique()) == [0.5, 1.5, 3.0, 5.0, 7.5]
     for key in ("effect", "strength", "params", "base", "noise", "gap_rms_g", "noise_rms_g",
                 "snr", "family"):
-        assert key in truth
-    assert truth["family"] == "B"
-    json.dumps(truth)  # serialisable
+        assert key in truth.to_json()
+    assert truth.family == "B"
+    json.dumps(truth.to_json())  # serialisable
 
 
 def test_same_seed_identical_and_other_seed_different():
     a, ta = sb.generate("capstan", 7, trials=2)
     b, tb = sb.generate("capstan", 7, trials=2)
     pd.testing.assert_frame_equal(a, b)
-    assert json.dumps(ta, sort_keys=True) == json.dumps(tb, sort_keys=True)
+    assert json.dumps(ta.to_json(), sort_keys=True) == json.dumps(tb.to_json(), sort_keys=True)
     c, _ = sb.generate("capstan", 8, trials=2)
     assert len(a) != len(c) or not np.allclose(a["force_g"], c["force_g"])
 
@@ -181,14 +182,14 @@ def test_base_is_shared_between_effects_with_the_same_seed():
 def test_no_effect_means_truth_equals_base_and_noise_is_sane():
     df, truth = gen(None)
     np.testing.assert_array_equal(df["true_force_g"], df["true_base_g"])
-    assert truth["gap_rms_g"] == 0.0 and truth["snr"] == 0.0
+    assert truth.gap_rms_g == 0.0 and truth.snr == 0.0
     resid = df["force_g"] - df["true_force_g"]
     rms = float(np.sqrt(np.mean(resid**2)))
-    assert math.isclose(rms, truth["noise_rms_g"], rel_tol=1e-9)
+    assert math.isclose(rms, truth.noise_rms_g, rel_tol=1e-9)
     assert 0.02 < rms < 0.07
     assert abs(resid.mean()) < 0.02
     # 13-bit quantisation: every reading is a multiple of the LSB
-    lsb = truth["noise"]["lsb_g"]
+    lsb = truth.noise.lsb_g
     k = df["force_g"] / lsb
     assert np.allclose(k, np.round(k), atol=1e-6)
 
@@ -202,7 +203,7 @@ def test_strength_zero_is_no_effect(eff):
 def test_noise_scale_scales_the_noise():
     _, t1 = sb.generate(None, 2, trials=2)
     _, t2 = sb.generate(None, 2, trials=2, noise_scale=2.0)
-    assert 1.7 < t2["noise_rms_g"] / t1["noise_rms_g"] < 2.3
+    assert 1.7 < t2.noise_rms_g / t1.noise_rms_g < 2.3
 
 
 def test_bad_arguments():
@@ -215,8 +216,8 @@ def test_bad_arguments():
 def test_gap_and_snr_are_what_the_truth_says():
     df, truth = gen("viscous_drag")
     gap = df["true_force_g"] - df["true_base_g"]
-    assert math.isclose(float(np.sqrt(np.mean(gap**2))), truth["gap_rms_g"], rel_tol=1e-9)
-    assert math.isclose(truth["snr"], truth["gap_rms_g"] / truth["noise_rms_g"], rel_tol=1e-12)
+    assert math.isclose(float(np.sqrt(np.mean(gap**2))), truth.gap_rms_g, rel_tol=1e-9)
+    assert math.isclose(truth.snr, truth.gap_rms_g / truth.noise_rms_g, rel_tol=1e-12)
 
 
 # ---------------------------------------------------------------------------------------
@@ -230,13 +231,13 @@ def test_time_depth_and_angles_are_sane():
         d = g["depth_mm"].to_numpy()
         assert np.all(np.diff(d) >= -1e-12)
         assert 12.0 <= d[-1] <= 18.0 and abs(d[0]) <= 0.5 + 1e-9
-        info = truth["base"]["trials"][name]
-        assert 0.3 <= info["pre_roll_s"] <= 2.0 and 1.0 <= info["dwell_s"] <= 4.0
-        v = info["speed_actual_mm_s"] / g["speed_mm_s"].iloc[0]
+        info = truth.base.trials[name]
+        assert 0.3 <= info.pre_roll_s <= 2.0 and 1.0 <= info.dwell_s <= 4.0
+        v = info.speed_actual_mm_s / g["speed_mm_s"].iloc[0]
         assert 0.98 <= v <= 1.02
         tip = g["true_theta_tip"].to_numpy()
         assert np.all(np.diff(tip) >= -1e-12)
-        assert 1.0 <= info["theta_hit"] <= 1.8  # first contact on the outer wall
+        assert 1.0 <= info.theta_hit <= 1.8  # first contact on the outer wall
         assert 3.0 < tip[-1] < 4.8
     con = true_con(df)
     assert (con >= 0).all() and con.max() > 1.5
@@ -244,13 +245,13 @@ def test_time_depth_and_angles_are_sane():
     m = df.dropna(subset=["theta_tip"])
     np.testing.assert_allclose(m["theta_con"], m["theta_tip"] - m["theta_bot"], atol=1e-12)
     assert (m["theta_bot"] <= m["theta_tip"] + 1e-12).all()
-    sd_tip = truth["noise"]["angle_sd_tip"]
-    sd_bot = truth["noise"]["angle_sd_bot"]
+    sd_tip = truth.noise.angle_sd_tip
+    sd_bot = truth.noise.angle_sd_bot
     assert np.abs(m["theta_tip"] - m["true_theta_tip"]).quantile(0.99) < 4 * sd_tip + 0.01
     assert np.abs(m["theta_bot"] - m["true_theta_bot"]).quantile(0.99) < 4 * sd_bot + 0.02
     # before contact the tracker reports theta_bot = theta_tip, theta_con = 0
     # (away from the frame interval in which contact begins)
-    hit = m["trial"].map({k: v["theta_hit"] for k, v in truth["base"]["trials"].items()})
+    hit = m["trial"].map({k: v.theta_hit for k, v in truth.base.trials.items()})
     pre = m[m["true_theta_tip"] < hit - 0.15]
     assert len(pre) > 0 and (pre["theta_con"] == 0).all()
     # NaN only where there is no video frame: a small share
@@ -259,7 +260,7 @@ def test_time_depth_and_angles_are_sane():
 
 def test_contact_start_moves_differently_between_trials():
     _, truth = gen(None, 2)
-    ends = [v["theta_bot_end"] - v["theta_hit"] for v in truth["base"]["trials"].values()]
+    ends = [v.theta_bot_end - v.theta_hit for v in truth.base.trials.values()]
     assert np.std(ends) > 0.03
 
 
@@ -285,8 +286,8 @@ def test_lift_relative_drop_grows_with_speed_at_every_theta_con():
 def test_lift_film_squeezes_out_after_the_stop():
     df, truth = gen("hydrodynamic_lift")
     g = df[df["trial"] == "v4_t00"]
-    info = truth["base"]["trials"]["v4_t00"]
-    after = g[g["time_s"] > info["t_motion_stop_s"] + 0.05]
+    info = truth.base.trials["v4_t00"]
+    after = g[g["time_s"] > info.t_motion_stop_s + 0.05]
     ratio = (after["true_force_g"] / after["true_base_g"]).to_numpy()
     assert ratio[0] < 0.9 and np.all(np.diff(ratio) > -1e-9) and ratio[-1] > ratio[0] + 0.05
 
@@ -295,7 +296,7 @@ def test_drag_adds_force_growing_with_speed_and_vanishing_at_rest():
     df, truth = gen("viscous_drag")
     before, moving, dwell = phases(df, truth)
     gap = (df["true_force_g"] - df["true_base_g"]) / df["trial"].map(
-        {k: v["gain"] for k, v in truth["base"]["trials"].items()})
+        {k: v.gain for k, v in truth.base.trials.items()})
     cruise = moving & (true_con(df) > 1.0)
     by_v = gap[cruise].groupby(df["speed_mm_s"][cruise]).mean().to_numpy()
     assert np.all(by_v > 0) and np.all(np.diff(by_v) > 0)
@@ -327,9 +328,9 @@ def test_capstan_belt_equation_limits():
     p = sb.linear_pressure(arc, np.array([0.1, 0.1]), np.array([0.2, 0.2]))
     mu = np.array([0.12, 0.12])
     base = sb.arc_force_g(arc, p, mu, 0.035)
-    np.testing.assert_allclose(sb._capstan_force_g(arc, p, mu, 0.035, 0.0, 0.1), base, rtol=1e-9)
-    f1 = sb._capstan_force_g(arc, p, mu, 0.035, 1.0, 0.1)
-    f2 = sb._capstan_force_g(arc, p, mu * 2, 0.035, 1.0, 0.1)
+    np.testing.assert_allclose(effects.capstan_force_g(arc, p, mu, 0.035, 0.0, 0.1), base, rtol=1e-9)
+    f1 = effects.capstan_force_g(arc, p, mu, 0.035, 1.0, 0.1)
+    f2 = effects.capstan_force_g(arc, p, mu * 2, 0.035, 1.0, 0.1)
     base2 = sb.arc_force_g(arc, p, mu * 2, 0.035)
     assert f1[0] > base[0] and (f2[0] - base2[0]) > 1.5 * (f1[0] - base[0])
     # the wrap, not theta_con alone: same theta_con further along the spiral turns more wall
@@ -338,8 +339,8 @@ def test_capstan_belt_equation_limits():
     turn_a = np.sum(np.maximum(arc.kappa[0], 0) * arc.ds[0])
     turn_b = np.sum(np.maximum(arc_b.kappa[0], 0) * arc_b.ds[0])
     assert turn_b > turn_a
-    gain_a = sb._capstan_force_g(arc, p, mu, 0.035, 1.0, 0.1)[0] - base[0]
-    gain_b = (sb._capstan_force_g(arc_b, pb, mu[:1], 0.035, 1.0, 0.1)[0]
+    gain_a = effects.capstan_force_g(arc, p, mu, 0.035, 1.0, 0.1)[0] - base[0]
+    gain_b = (effects.capstan_force_g(arc_b, pb, mu[:1], 0.035, 1.0, 0.1)[0]
               - sb.arc_force_g(arc_b, pb, mu[:1], 0.035)[0])
     assert not math.isclose(gain_a, gain_b, rel_tol=0.05)
 
@@ -350,13 +351,13 @@ def test_lag_lags_during_the_ramp_and_relaxes_after_the_stop():
     gap = df["true_force_g"] - df["true_base_g"]
     by_v = gap[moving].groupby(df["speed_mm_s"][moving]).mean().to_numpy()
     assert np.all(by_v < 0) and np.all(np.diff(by_v) < 0)  # grows with v
-    delay = truth["params"]["effect"]["delay_s"]
+    delay = truth.effect_params["delay_s"]
     shifts = np.arange(0.0, 1.5, 0.01)
     for name in ("v4_t00", "v3_t02"):
         g = df[df["trial"] == name]
-        info = truth["base"]["trials"][name]
+        info = truth.base.trials[name]
         t, b, f = (g[c].to_numpy() for c in ("time_s", "true_base_g", "true_force_g"))
-        stop = t >= info["t_motion_stop_s"]
+        stop = t >= info.t_motion_stop_s
         # relaxes after the stop: large deficit at the stop, small at the end of the dwell
         assert abs(f[stop][0] - b[stop][0]) > 5 * abs(f[-1] - b[-1])
         assert f[stop][-1] > f[stop][0]
@@ -403,7 +404,7 @@ def test_profile_preserves_the_load_and_concentrates_it_at_the_ends():
     arc = sb.contact_arc(g, np.array([1.0]), np.array([3.8]))
     pt, pb = np.array([0.1]), np.array([0.2])
     lin = sb.linear_pressure(arc, pt, pb)
-    prof = sb._profile_pressure(arc, lin, pt, pb, 1.0, 1.0)
+    prof = effects.profile_pressure(arc, lin, pt, pb, 1.0, 1.0)
     assert math.isclose(prof.sum(), lin.sum(), rel_tol=1e-9)
     mid = slice(arc.u.size // 3, 2 * arc.u.size // 3)
     assert prof[0, mid].mean() < 0.5 * lin[0, mid].mean()
@@ -417,10 +418,10 @@ def test_profile_preserves_the_load_and_concentrates_it_at_the_ends():
 def test_snr_at_strength_one_is_at_least_three(eff):
     for seed in (0, 1, 2):
         _, truth = gen(eff, seed)
-        assert truth["snr"] >= 3.0, (eff, seed, truth["snr"])
+        assert truth.snr >= 3.0, (eff, seed, truth.snr)
     _, weak = gen(eff, 1, 0.3)
     _, strong = gen(eff, 1, 1.0)
-    assert weak["gap_rms_g"] < 0.6 * strong["gap_rms_g"]
+    assert weak.gap_rms_g < 0.6 * strong.gap_rms_g
 
 
 def test_generation_time_is_reported():

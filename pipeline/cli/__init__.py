@@ -391,7 +391,7 @@ def _run_render(args: argparse.Namespace) -> int:
                                           rate_hz=args.rate or 50.0, dwell_s=dwell, angles_fps=args.fps)
         manifest = write_experiment(args.out, synced, truth)
         print(f"wrote {len(manifest)} trials to {args.out} (manifest.csv, angles/, force/, truth/); hidden effect "
-              f"{truth['effect'] or 'none'}, noiseless gap {truth['gap_rms_g']:.3g} g RMS vs noise {truth['noise_rms_g']:.3g} g")
+              f"{truth.effect or 'none'}, noiseless gap {truth.gap_rms_g:.3g} g RMS vs noise {truth.noise_rms_g:.3g} g")
         return 0
     cfg = ExperimentConfig(speeds_mm_s=args.speeds, trials=args.trials, depth_mm=args.depth, fps=args.fps,
                            max_frames=args.max_frames, width=args.size[0], height=args.size[1],

@@ -17,7 +17,7 @@ Scores
   (held-out RMSE against the measured force, base -> effect; includes the noise floor) and
   ``true_shrink_pct``, the same against the noiseless force of the generator (the gap itself).
 - *detectable*: the generator's noiseless gap RMS exceeds twice its noise RMS
-  (``truth["detectable"]``); *residually detectable*: the part of the gap the paper's model cannot absorb
+  (``truth.detectable``); *residually detectable*: the part of the gap the paper's model cannot absorb
   (:func:`residual_gap`) exceeds twice the noise RMS.
 
 A row-number column (``row_id``, not truth) is added to the table so that the held-out
@@ -251,9 +251,9 @@ def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
     rng = np.random.default_rng(np.random.SeedSequence(list(spec.entropy)))
     synced, truth = synthetic_dataset(rng, spec.effect, strength=spec.strength if spec.effect else 1.0,
                                       speeds_mm_s=config.speeds_mm_s, trials=config.trials, noise=noise)
-    clean = truth["tables"]["clean"]
+    clean = truth.tables.clean
     return GeneratedCase(synced, clean["force_effect_g"].to_numpy(float), clean["force_base_g"].to_numpy(float),
-                         float(truth["gap_rms_g"]), float(truth["noise_rms_g"]))
+                         float(truth.gap_rms_g), float(truth.noise_rms_g))
 
 
 def family_b(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
@@ -265,7 +265,7 @@ def family_b(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
     truth_columns = [c for c in table.columns if c.startswith("true_")]
     return GeneratedCase(table.drop(columns=truth_columns).reset_index(drop=True),
                          table["true_force_g"].to_numpy(float), table["true_base_g"].to_numpy(float),
-                         float(truth["gap_rms_g"]), float(truth["noise_rms_g"]))
+                         float(truth.gap_rms_g), float(truth.noise_rms_g))
 
 
 #: Generator families: name -> function (case spec, config) -> :class:`GeneratedCase`.

@@ -26,6 +26,7 @@ contact growth and the noise are the same with and without an effect.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -43,9 +44,16 @@ from tympani.vision.rendering import (
 from tympani.pipeline.model.friction import FrictionParams, insertion_force
 from tympani.pipeline.io import atomic_write_csv, atomic_write_json
 from tympani.pipeline.model.paper import paper_params
-from tympani.pipeline.synthetic.family_a import TrialState, apply_hidden_effect, draw_effect_params, effect_truth, trial_name
+from tympani.pipeline.synthetic.family_a import (
+    EffectTruth,
+    TrialState,
+    apply_hidden_effect,
+    draw_effect_params,
+    effect_truth,
+    trial_name,
+)
 
-__all__ = ["ExperimentConfig", "SensorConfig", "clean_forces_from_truth", "force_log_from_truth",
+__all__ = ["ExperimentConfig", "SensorConfig", "VideoTruth", "clean_forces_from_truth", "force_log_from_truth",
            "render_experiment"]
 
 
@@ -126,6 +134,30 @@ class ExperimentConfig:
     strength: float = 1.0
     effect_params: tuple[tuple[str, float], ...] = ()
     paired: bool = False
+
+
+@dataclass(frozen=True)
+class VideoTruth(EffectTruth):
+    """The truth of a rendered experiment: its hidden effect, the seed and the sensor.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of everything random (:func:`render_experiment`).
+    sensor : SensorConfig
+        The force sensor.
+
+    The other parameters are those of :class:`pipeline.synthetic.family_a.EffectTruth`.
+    """
+
+    seed: int
+    sensor: SensorConfig
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object written as ``truth/effect.json``."""
+        out = super().to_json()
+        out.update(mode="video", seed=self.seed, sensor=asdict(self.sensor))
+        return out
 
 
 def _force_clock(truth: pd.DataFrame, speed_mm_s: float, sensor: SensorConfig):
@@ -291,10 +323,10 @@ def render_experiment(out_dir: str | Path, cfg: ExperimentConfig = ExperimentCon
                              fps=spec.effective_fps(), video_t0_s=cfg.sensor.lead_s))
     manifest = pd.DataFrame(rows)
     atomic_write_csv(out / "manifest.csv", manifest)
+    gap = effect_truth(effect, cfg.strength, values, pd.concat(cleans, ignore_index=True),
+                       np.concatenate([lg["force_g"].to_numpy() for lg in logs]), base=params)
     atomic_write_json(out / "truth" / "effect.json",
-                      effect_truth(effect, cfg.strength, values, pd.concat(cleans, ignore_index=True),
-                                   np.concatenate([lg["force_g"].to_numpy() for lg in logs]), base=params,
-                                   extra=dict(mode="video", seed=seed, sensor=asdict(cfg.sensor))))
+                      VideoTruth(**gap.effect_fields(), seed=seed, sensor=cfg.sensor).to_json())
     atomic_write_json(
         out / "truth" / "pose.json",
         dict(pose=dict(asdict(pose), residual_px=0.0), appearance=asdict(look), config=asdict(cfg), seed=seed),
