@@ -274,7 +274,12 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     extent = hi0 - lo
     back = int(np.ceil((2.0 * cfg.bubble_max_mm + cfg.max_gap_mm + cfg.bubble_track_mm) / step))
     inner = np.abs(plan.u)
-    windows = []  # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end
+    # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end,
+    # its bright pixels (coverage, blurred * scale + shift, up to cfg.bubble_bright) clear of the walls
+    bright = blurred * scale
+    bright += shift
+    bright = bright <= cfg.bubble_bright
+    windows = []
     half_median: dict[tuple[int, int], float] = {}  # frames with the same window share its median
     for b in np.flatnonzero(last_dark >= 0).tolist():
         end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
@@ -283,15 +288,14 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         if span_b not in half_median:
             half_median[span_b] = float(np.median(plan.half_mm[span_b[0] : span_b[1]]))
         half_b = half_median[span_b]
-        windows.append((b, end, a, cols, half_b, blurred[:, cols] * scale[cols] + shift[cols],
-                        inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
-    candidates = with_compact([(c <= cfg.bubble_bright) & i[:, None] for *_, c, i in windows], step,
+        windows.append((b, end, a, cols, half_b, inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
+    candidates = with_compact([bright[:, cols] & i[:, None] for *_, cols, _, i in windows], step,
                                np.array([du * w[4] for w in windows]), cfg)
-    for (b, end, a, cols, half_b, cover_b, inside_b), candidate in zip(windows, candidates.tolist()):
+    for (b, end, a, cols, half_b, inside_b), candidate in zip(windows, candidates.tolist()):
         if not candidate:  # no bubble-like component in the window: bubble_end would find none
             continue
-        cut, stop = bubble_end(cover_b, darkness[cols] >= cfg.dark_level, seed[cols], inside_b, end - a, step,
-                                du * half_b, 2.0 * plan.r_tip_mm, cfg)
+        cut, stop = bubble_end(blurred[:, cols] * scale[cols] + shift[cols], darkness[cols] >= cfg.dark_level,
+                               seed[cols], inside_b, end - a, step, du * half_b, 2.0 * plan.r_tip_mm, cfg)
         if stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
     # the stations that hold the array
