@@ -49,7 +49,7 @@ _MIN_MASKED_RATIO = 0.18
 # try two overlapping copies.
 _MIN_WIDENING_PX = 1.5
 _MIN_WIDENING_EXPLAINED = 0.4
-# Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
+# Half widths (px) of the wall lines tried by :func:`_surface_grid` (< 0: bright lines).
 _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 
 
@@ -590,8 +590,9 @@ def _copy_starts(
     may lie on either copy or between them.
 
     Copies further apart than their edges' width: the strongest peak of
-    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
-    the surface's best peak (two best, for region boundaries) proposes the other copy, unless
+    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked
+    (:func:`_masked_tables`, on the fit's own tables when that copy is the fit), the surface's
+    best peak (two best, for region boundaries) proposes the other copy, unless
     the masked surface's maximum is below :data:`_MIN_MASKED_RATIO` of the unmasked one (no
     edges off the first copy's). Lines closer than that (one thicker line): when the line's
     width varies with its direction (:func:`_line_widening`: at least
