@@ -1,5 +1,6 @@
 """Small array helpers the measurement's stages share: element picking, odd window lengths, a
-quantile by sorting and the erosion of masks along the stations."""
+quantile by sorting, running reductions down the offsets and the erosion of masks along the
+stations."""
 
 from __future__ import annotations
 
@@ -23,6 +24,18 @@ def quantile(x: np.ndarray, q: float) -> float:
     """The ``q``-quantile (0–1) of ``x`` by sorting (cheaper than ``np.percentile`` here)."""
     xs = np.sort(x)
     return float(xs[int(round(q * (len(xs) - 1)))])
+
+
+def accumulate_rows(ufunc: np.ufunc, a: np.ndarray) -> np.ndarray:
+    """``ufunc.accumulate(a, axis=0)`` of a 2-D array, one whole row at a time: the same values
+    (each row combined with the running result in the same order), several times cheaper than
+    NumPy's accumulation along the first axis, which runs one column at a time."""
+    out = np.empty_like(a)
+    if len(a):
+        out[0] = a[0]
+    for k in range(1, len(a)):
+        ufunc(out[k - 1], a[k], out=out[k])
+    return out
 
 
 def erode(mask: np.ndarray, reach: int) -> np.ndarray:

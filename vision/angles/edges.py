@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tympani.vision.angles.arrays import odd_ceil, quantile, take2d
+from tympani.vision.angles.arrays import accumulate_rows, odd_ceil, take2d
 from tympani.vision.angles.bubbles import bubble_end, with_compact
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import (
@@ -114,8 +114,8 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float, run: np.n
         need = np.maximum(np.ceil(run), 1.0).astype(np.int16)[None, :]
         margin = np.floor(wall if wall is not None else np.zeros(n)).astype(np.int16)[None, :]
         # consecutive offsets below the level ending at j going down, and starting at j going up
-        last_above = np.maximum.accumulate(np.where(below, np.int16(-1), j), axis=0)
-        next_above = np.minimum.accumulate(np.where(below, np.int16(m), j)[::-1], axis=0)[::-1]
+        last_above = accumulate_rows(np.maximum, np.where(below, np.int16(-1), j))
+        next_above = accumulate_rows(np.minimum, np.where(below, np.int16(m), j)[::-1])[::-1]
         down, up = j - last_above, next_above - j
         fluid_low = below & ((down >= need) | (last_above < margin))
         fluid_high = below & ((up >= need) | (next_above > np.int16(m - 1) - margin))
@@ -218,18 +218,22 @@ def _fill(cover: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     a = np.clip(np.where(ok, np.ceil(low), 0), 0, m - 1).astype(np.intp)
     b = np.clip(np.where(ok, np.floor(high), 0), 0, m - 1).astype(np.intp)
     ok &= b >= a
-    cs = np.vstack([np.zeros((1, n)), np.cumsum(cover[:, :n], axis=0)])
+    cs = np.zeros((m + 1, n))
+    cs[1:] = accumulate_rows(np.add, cover[:, :n])
     cols = np.arange(n)
     mean = (take2d(cs, b + 1, cols) - take2d(cs, a, cols)) / np.maximum(b - a + 1, 1)
     return np.where(ok, mean, np.nan)
 
 
-def _filled(fill: np.ndarray, body: np.ndarray, least: float) -> bool:
-    """Whether the array's body is mostly dark between its edges: the median of ``fill`` over the
-    ``body`` stations is at least ``least`` (a highlight along the middle of a round array takes a
-    third of it at most; the grain of noise or of compression fills half)."""
-    values = fill[body & np.isfinite(fill)]
-    return len(values) == 0 or quantile(values, 0.5) >= least
+def _unfilled(fill: np.ndarray, body: np.ndarray, arr: Ragged, least: float) -> np.ndarray:
+    """Per frame of ``arr``, whether the array's body is not mostly dark between its edges: the
+    median (:func:`~tympani.vision.angles.arrays.quantile`) of ``fill`` over the ``body``
+    stations is below ``least`` (a highlight along the middle of a round array takes a third
+    of it at most; the grain of noise or of compression fills half). False for a frame with
+    no body station."""
+    keep = body & np.isfinite(fill)
+    median = row_quantiles(arr.pad(fill, 0.0), arr.pad(keep, False), 0.5)
+    return ~(np.isnan(median) | (median >= least))
 
 
 def _fluid_run(plan: MeasurePlan, px: np.ndarray) -> np.ndarray:
@@ -270,20 +274,28 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     extent = hi0 - lo
     back = int(np.ceil((2.0 * cfg.bubble_max_mm + cfg.max_gap_mm + cfg.bubble_track_mm) / step))
     inner = np.abs(plan.u)
-    windows = []  # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end
+    # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end,
+    # its bright pixels (coverage, blurred * scale + shift, up to cfg.bubble_bright) clear of the walls
+    bright = blurred * scale
+    bright += shift
+    bright = bright <= cfg.bubble_bright
+    windows = []
+    half_median: dict[tuple[int, int], float] = {}  # frames with the same window share its median
     for b in np.flatnonzero(last_dark >= 0).tolist():
         end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
         cols = slice(int(strip.start[b]) + a, int(strip.start[b] + strip.n[b]))
-        half_b = float(np.median(plan.half_mm[lo[b] + a : lo[b] + strip.n[b]]))
-        windows.append((b, end, a, cols, half_b, blurred[:, cols] * scale[cols] + shift[cols],
-                        inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
-    candidates = with_compact([(c <= cfg.bubble_bright) & i[:, None] for *_, c, i in windows], step,
+        span_b = (int(lo[b]) + a, int(lo[b] + strip.n[b]))
+        if span_b not in half_median:
+            half_median[span_b] = float(np.median(plan.half_mm[span_b[0] : span_b[1]]))
+        half_b = half_median[span_b]
+        windows.append((b, end, a, cols, half_b, inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
+    candidates = with_compact([bright[:, cols] & i[:, None] for *_, cols, _, i in windows], step,
                                np.array([du * w[4] for w in windows]), cfg)
-    for (b, end, a, cols, half_b, cover_b, inside_b), candidate in zip(windows, candidates.tolist()):
+    for (b, end, a, cols, half_b, inside_b), candidate in zip(windows, candidates.tolist()):
         if not candidate:  # no bubble-like component in the window: bubble_end would find none
             continue
-        cut, stop = bubble_end(cover_b, darkness[cols] >= cfg.dark_level, seed[cols], inside_b, end - a, step,
-                                du * half_b, 2.0 * plan.r_tip_mm, cfg)
+        cut, stop = bubble_end(blurred[:, cols] * scale[cols] + shift[cols], darkness[cols] >= cfg.dark_level,
+                               seed[cols], inside_b, end - a, step, du * half_b, 2.0 * plan.r_tip_mm, cfg)
         if stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
     # the stations that hold the array
@@ -321,10 +333,7 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     body = erode_ragged((dark_a - cf) / (ca - cf) >= cfg.body_level, arr, cfg.border_px)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
     fill = _fill(cover, low, high)
-    for b in range(arr.n.size):  # a frame whose "body" is not dark between its edges has no array
-        sl = slice(int(arr.start[b]), int(arr.start[b] + arr.n[b]))
-        if not _filled(fill[sl], body[sl], cfg.body_fill):
-            body[sl] = False
+    body &= ~_unfilled(fill, body, arr, cfg.body_fill)[arr.row]  # not dark between its edges: no array
     ok_in, ok_out = body & (v_in >= -half), body & (v_out <= half)  # NaN compares False
     out = []
     for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), extent.tolist(), arr.start.tolist(), arr.n.tolist())):

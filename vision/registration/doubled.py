@@ -49,7 +49,7 @@ _MIN_MASKED_RATIO = 0.18
 # try two overlapping copies.
 _MIN_WIDENING_PX = 1.5
 _MIN_WIDENING_EXPLAINED = 0.4
-# Half widths (px) of the wall lines tried by :func:`_shift_surface` (< 0: bright lines).
+# Half widths (px) of the wall lines tried by :func:`_surface_grid` (< 0: bright lines).
 _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 
 
@@ -357,25 +357,115 @@ def _bin_sums(rows: np.ndarray, bins: np.ndarray, n_bins: int) -> np.ndarray:
     return out
 
 
-def _shift_surface(
-    pose: CameraPose,
-    sfield: np.ndarray,
-    model: WallModel,
-    radius_px: float,
-    classes: tuple[float, ...],
-    mask_half_width: float | None = None,
-    n_bins: int = 48,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """How well the walls at ``pose`` moved by each shift ``v`` (px, ``|v_x|, |v_y| <=
-    radius_px``) lie on edges: the polarity-aware evidence of ``classes`` (at ``±h``)
-    summed over the walls, for the best line half width ``h`` of
-    :data:`_SURFACE_HALF_WIDTHS` (lines) or ``h = 0`` (region boundaries, one class).
+@dataclass(frozen=True)
+class _SurfaceGrid:
+    """The shifts a shift surface is evaluated at, and where each normal-direction bin's
+    evidence is read for them (:func:`_surface_grid`).
 
-    The signed field is sampled once along each wall normal and the samples summed over
-    wall points of about the same normal direction (``n_bins`` bins): a shift ``v`` then
-    moves every edge of a bin by the same ``n·v``, one lookup per bin. With
-    ``mask_half_width`` (px), the edges at ``±mask_half_width`` (within 1.5 px) are left
-    out: the surface then shows where else the walls have edges, e.g. their second copy.
+    Attributes
+    ----------
+    grid : ndarray, shape (m,)
+        The shifts (px) of the surface's rows (y) and columns (x).
+    t : ndarray
+        Offsets (px) along the wall normals at which the evidence is sampled.
+    half_widths : tuple of float
+        Line half widths (px) tried (< 0: bright lines).
+    reads : dict
+        For each edge offset ``±h`` (px): the flat index into an ``(n_bins, len(t))`` table
+        of the sample at or below each bin's edge for each shift, shape ``(n_bins, m * m)``,
+        and the linear weight of the next sample.
+    """
+
+    grid: np.ndarray
+    t: np.ndarray
+    half_widths: tuple[float, ...]
+    reads: dict[float, tuple[np.ndarray, np.ndarray]]
+
+
+def _surface_grid(radius_px: float, classes: tuple[float, ...], n_bins: int = 48) -> _SurfaceGrid:
+    """The :class:`_SurfaceGrid` of shifts ``v`` (px, ``|v_x|, |v_y| <= radius_px``) in steps
+    of 1 px (more above 12 px of radius, so that the grid has at most 25 steps a side), for
+    the half widths of :data:`_SURFACE_HALF_WIDTHS` (lines, two ``classes``) or 0 (region
+    boundaries), with ``n_bins`` bins of normal direction over 360°.
+
+    A shift ``v`` moves every edge of the bin centred on normal direction ``n`` by ``n·v``;
+    the edge at offset ``±h`` is read at ``n·v ± h`` by linear interpolation between samples
+    0.5 px apart.
+    """
+    half_widths = _SURFACE_HALF_WIDTHS if len(classes) == 2 else (0.0,)
+    h_max = max(abs(h) for h in half_widths)
+    reach = radius_px * math.sqrt(2.0) + h_max + 1.0
+    t = np.arange(-reach, reach + 1e-9, 0.5)
+    centre = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
+    step = max(1.0, radius_px / 12.0)
+    grid = np.arange(-math.floor(radius_px / step), math.floor(radius_px / step) + 1) * step
+    vx, vy = np.meshgrid(grid, grid)
+    along = np.cos(centre)[:, None] * vx.ravel()[None, :] + np.sin(centre)[:, None] * vy.ravel()[None, :]
+    row_start = (np.arange(n_bins) * len(t))[:, None]
+    reads = {}
+    for offset in sorted({h for h in half_widths} | {-h for h in half_widths}):
+        idx = np.clip((along + offset + reach) * 2.0, 0.0, len(t) - 1.001)
+        i0 = idx.astype(np.intp)
+        reads[offset] = (i0 + row_start, idx - i0)
+    return _SurfaceGrid(grid, t, half_widths, reads)
+
+
+def _surface_tables(
+    pose: CameraPose, sfield: np.ndarray, model: WallModel, classes: tuple[float, ...], t: np.ndarray, n_bins: int = 48
+) -> np.ndarray:
+    """The polarity-aware evidence of ``classes`` along the normals of the walls at ``pose``,
+    summed over wall points of about the same normal direction.
+
+    Parameters
+    ----------
+    pose : CameraPose
+        The walls' pose.
+    sfield : ndarray, shape (h, w, 2)
+        Signed gradient field (grey levels/px).
+    model : WallModel
+        Wall points.
+    classes : tuple of float
+        Polarity classes shown (:func:`_wall_classes`).
+    t : ndarray
+        Offsets (px) along the normals.
+    n_bins : int
+        Bins of normal direction over 360°.
+
+    Returns
+    -------
+    ndarray, shape (2, n_bins, len(t))
+        Evidence (grey levels/px, summed) of edges whose gradient points out of the channel
+        (first) and into it (second), zero for a class not shown.
+    """
+    pts, nrm = image_points(pose, model)
+    vis = visible(pts, sfield.shape)
+    pts, nrm = pts[vis], nrm[vis]
+    prof = profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    out_of = np.maximum(proj, 0.0) if 1.0 in classes else np.zeros_like(proj)
+    into = np.maximum(-proj, 0.0) if -1.0 in classes else np.zeros_like(proj)
+    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
+    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
+    return np.stack([_bin_sums(out_of, bins, n_bins), _bin_sums(into, bins, n_bins)])
+
+
+def _masked_tables(tables: np.ndarray, t: np.ndarray, mask_half_width: float) -> np.ndarray:
+    """:func:`_surface_tables` without the edges at ``±mask_half_width`` (px, within 1.5 px):
+    the first class's evidence at ``+mask_half_width``, the second's at ``-mask_half_width``."""
+    out = tables.copy()
+    out[0][:, np.abs(t - mask_half_width) <= 1.5] = 0.0
+    out[1][:, np.abs(t + mask_half_width) <= 1.5] = 0.0
+    return out
+
+
+def _shift_surface(tables: np.ndarray, sg: _SurfaceGrid) -> tuple[np.ndarray, np.ndarray]:
+    """How well the walls of :func:`_surface_tables` moved by each shift of ``sg``
+    (:func:`_surface_grid`) lie on edges: the evidence summed over the walls' bins, the first
+    class read at ``+h`` and the second at ``-h``, for the best line half width ``h`` of
+    ``sg.half_widths``.
+
+    With :func:`_masked_tables`, the surface shows where else the walls have edges, e.g.
+    their second copy.
 
     Returns
     -------
@@ -383,45 +473,22 @@ def _shift_surface(
         Evidence (arbitrary units), row index along y, column along x.
     half_width : ndarray, shape (m, m)
         The half width (px) that gave it.
-    grid : ndarray, shape (m,)
-        The shifts (px) of the rows and columns, in steps of 1 px (more above 12 px of
-        radius, so that the grid has at most 25 steps a side).
     """
-    pts, nrm = image_points(pose, model)
-    vis = visible(pts, sfield.shape)
-    pts, nrm = pts[vis], nrm[vis]
-    half_widths = _SURFACE_HALF_WIDTHS if len(classes) == 2 else (0.0,)
-    h_max = max(abs(h) for h in half_widths)
-    reach = radius_px * math.sqrt(2.0) + h_max + 1.0
-    t = np.arange(-reach, reach + 1e-9, 0.5)
-    prof = profiles(sfield, pts, nrm, t)
-    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
-    out_of = np.maximum(proj, 0.0) if 1.0 in classes else np.zeros_like(proj)
-    into = np.maximum(-proj, 0.0) if -1.0 in classes else np.zeros_like(proj)
-    if mask_half_width is not None:
-        out_of[:, np.abs(t - mask_half_width) <= 1.5] = 0.0
-        into[:, np.abs(t + mask_half_width) <= 1.5] = 0.0
-    angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
-    bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
-    sums = np.stack([_bin_sums(out_of, bins, n_bins), _bin_sums(into, bins, n_bins)])
-    centre = (np.arange(n_bins) + 0.5) * (2.0 * np.pi / n_bins)
-    step = max(1.0, radius_px / 12.0)
-    grid = np.arange(-math.floor(radius_px / step), math.floor(radius_px / step) + 1) * step
-    vx, vy = np.meshgrid(grid, grid)
-    along = np.cos(centre)[:, None] * vx.ravel()[None, :] + np.sin(centre)[:, None] * vy.ravel()[None, :]
-    best = np.full(vx.size, -np.inf)
-    best_h = np.zeros(vx.size)
-    rows = np.arange(n_bins)[:, None]
-    for h in half_widths:
-        total = np.zeros(vx.size)
-        for table, offset in ((sums[0], h), (sums[1], -h)):
-            idx = np.clip((along + offset + reach) * 2.0, 0.0, len(t) - 1.001)
-            i0 = idx.astype(np.intp)
-            frac = idx - i0
-            total += (table[rows, i0] * (1.0 - frac) + table[rows, i0 + 1] * frac).sum(axis=0)
+    evidence = {}
+    for offset, (flat, frac) in sg.reads.items():
+        for k in (0, 1):
+            table = tables[k].ravel()
+            evidence[k, offset] = (table.take(flat) * (1.0 - frac) + table.take(flat + 1) * frac).sum(axis=0)
+    m = len(sg.grid)
+    best = np.full(m * m, -np.inf)
+    best_h = np.zeros(m * m)
+    for h in sg.half_widths:
+        total = np.zeros(m * m)
+        total += evidence[0, h]
+        total += evidence[1, -h]
         better = total > best
         best[better], best_h[better] = total[better], h
-    return best.reshape(vx.shape), best_h.reshape(vx.shape), grid
+    return best.reshape(m, m), best_h.reshape(m, m)
 
 
 def _surface_peaks(
@@ -523,8 +590,9 @@ def _copy_starts(
     may lie on either copy or between them.
 
     Copies further apart than their edges' width: the strongest peak of
-    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked,
-    the surface's best peak (two best, for region boundaries) proposes the other copy, unless
+    :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked
+    (:func:`_masked_tables`, on the fit's own tables when that copy is the fit), the surface's
+    best peak (two best, for region boundaries) proposes the other copy, unless
     the masked surface's maximum is below :data:`_MIN_MASKED_RATIO` of the unmasked one (no
     edges off the first copy's). Lines closer than that (one thicker line): when the line's
     width varies with its direction (:func:`_line_widening`: at least
@@ -535,19 +603,22 @@ def _copy_starts(
     lines = len(classes) == 2
     radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
     sparse = model.subsample(2.0 / pose.px_per_mm)  # enough wall to place the walls to a pixel
-    surface, widths, grid = _shift_surface(pose, sfield, sparse, radius, classes)
+    sg = _surface_grid(radius, classes)
+    tables = _surface_tables(pose, sfield, sparse, classes, sg.t)
+    surface, widths = _shift_surface(tables, sg)
     starts = []
-    peaks = _surface_peaks(surface, widths, grid, 1)
+    peaks = _surface_peaks(surface, widths, sg.grid, 1)
     if peaks:
         v, _, h = peaks[0]
-        one, one_hw = pose, half_width
+        one, one_hw, one_tables = pose, half_width, tables
         if math.hypot(*v) >= 1.0:
             one, one_hw = refine_signed(
                 _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
             )
-        masked, masked_hw, _ = _shift_surface(one, sfield, sparse, radius, classes, mask_half_width=one_hw)
+            one_tables = _surface_tables(one, sfield, sparse, classes, sg.t)
+        masked, masked_hw = _shift_surface(_masked_tables(one_tables, sg.t, one_hw), sg)
         if float(masked.max()) >= _MIN_MASKED_RATIO * float(surface.max()):
-            for shift, _, _ in _surface_peaks(masked, masked_hw, grid, 1 if lines else 2, min_shift_px=2.0):
+            for shift, _, _ in _surface_peaks(masked, masked_hw, sg.grid, 1 if lines else 2, min_shift_px=2.0):
                 starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
     if lines:
         shift, explained = _line_widening(pose, half_width, sfield, sparse)
