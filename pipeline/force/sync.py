@@ -74,12 +74,12 @@ import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Sequence
 
 import numpy as np
 import pandas as pd
 
-from tympani.pipeline.force.forcelog import ForceLogConfig, parse_numeric, read_table_lines
+from tympani.pipeline.force.forcelog import ColumnKind, CsvHeader, ForceLogConfig, parse_numeric, read_csv_columns, read_table_lines
 from tympani.pipeline.io import atomic_write_csv, atomic_write_json, csv_records, data_lines, tool_version
 from tympani.pipeline.force.labstreams import read_lab_logs, track_coverage
 from tympani.pipeline.force.logformat import LogFormat, read_log_format
@@ -90,10 +90,12 @@ from tympani.vision.errors import InputError, is_input_error, one_line
 __all__ = [
     "SYNC_COLUMNS",
     "SYNC_EXTRA_COLUMNS",
+    "SYNC_NUMBER_COLUMNS",
     "SyncConfig",
     "OffsetEstimate",
     "TrialSync",
     "SyncResult",
+    "read_synced",
     "read_angles_table",
     "frame_period",
     "interpolate_angles",
@@ -109,6 +111,13 @@ SYNC_COLUMNS: tuple[str, ...] = ("trial", "speed_mm_s", "time_s", "force_g", "th
 #: Extra columns written after :data:`SYNC_COLUMNS`.
 SYNC_EXTRA_COLUMNS: tuple[str, ...] = (
     "depth_mm", "video_time_s", "saturated", "sync_offset_s", "sync_uncertainty_s",
+)
+
+#: Columns of a synced table read as numbers (float, NaN for an empty cell); ``trial`` and any
+#: other column not named here are text, ``saturated`` is a flag.
+SYNC_NUMBER_COLUMNS: tuple[str, ...] = (
+    "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con",
+    "depth_mm", "video_time_s", "sync_offset_s", "sync_uncertainty_s",
 )
 
 _ANGLES = ("theta_tip", "theta_bot", "theta_con")
@@ -309,10 +318,11 @@ class SyncResult:
         return tuple(t for t in self.trials if t.status != "ok")
 
 
-# --------------------------------------------------------------------------- angles table
+# --------------------------------------------------------------------------- flags
 
 
-def _parse_ok(cells: list[str], lines: np.ndarray, name: str) -> np.ndarray:
+def _parse_flag(cells: Sequence[str], lines: np.ndarray, name: str, column: str = "ok") -> np.ndarray:
+    """A column of true/false cells as bools; an error naming the line of any other text."""
     low = [c.strip().lower() for c in cells]
     out = np.empty(len(low), dtype=bool)
     for i, c in enumerate(low):
@@ -321,8 +331,67 @@ def _parse_ok(cells: list[str], lines: np.ndarray, name: str) -> np.ndarray:
         elif c in _FALSE:
             out[i] = False
         else:
-            raise InputError(f"{name}:{lines[i]}", f"ok {cells[i]!r} is not true or false")
+            raise InputError(f"{name}:{lines[i]}", f"{column} {cells[i]!r} is not true or false")
     return out
+
+
+# --------------------------------------------------------------------------- the synced table
+
+
+def _synced_kinds(header: CsvHeader) -> dict[str, ColumnKind]:
+    """Every column of a synced table's header: a number column or text."""
+    return {c: "number" if c in SYNC_NUMBER_COLUMNS else "text" for c in header.columns}
+
+
+def read_synced(path: str | os.PathLike) -> pd.DataFrame:
+    """Read a synced table (docs/file-formats.md), as :func:`write_sync` writes it or by hand.
+
+    A line whose first non-blank character is ``#`` is a comment and blank lines are skipped;
+    a ``#`` anywhere else is part of a field (as in :func:`~pipeline.io.csv_records`), so a
+    number cell such as ``0.5 # note`` is an error naming its line, never a cut line. No
+    column is required here: each analysis checks the columns it needs.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The CSV file.
+
+    Returns
+    -------
+    DataFrame
+        The columns in file order: those of :data:`SYNC_NUMBER_COLUMNS` as float (s, g, mm,
+        rad, mm/s; NaN for an empty or NaN cell), ``saturated`` as bool (``true/1/yes/t/y``
+        or ``false/0/no/f/n``/empty, any case), every other column (``trial`` among them)
+        as stripped text (``str``); then ``line``, the 1-based line of each row in the file.
+
+    Raises
+    ------
+    InputError
+        Missing file, not UTF-8 text, no header, duplicate column names, a row with another
+        number of fields than the header, text or an infinity in a number column, a
+        ``saturated`` cell that is not true or false (one line naming the file and the
+        line), or no data rows.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "no such synced table" if not p.exists() else "synced table is not a file")
+    name = str(p)
+    table = read_csv_columns(p, _synced_kinds, name=name)
+    if not table.n_rows:
+        raise InputError(name, "synced table has no rows")
+    out = pd.DataFrame(index=pd.RangeIndex(table.n_rows))
+    for column, values in table.values.items():
+        if column == "saturated":
+            out[column] = _parse_flag(values, table.lines, name, column)
+        elif values.dtype == object:
+            out[column] = pd.Series(values, dtype=str)
+        else:
+            out[column] = values
+    out["line"] = table.lines
+    return out
+
+
+# --------------------------------------------------------------------------- angles table
 
 
 def read_angles_table(path: str | os.PathLike) -> pd.DataFrame:
@@ -365,7 +434,7 @@ def read_angles_table(path: str | os.PathLike) -> pd.DataFrame:
     out = pd.DataFrame({"time_s": parse_numeric(cols["time_s"], lines, column="time_s", name=name, allow_nan=False)})
     for c in _ANGLES:
         out[c] = parse_numeric(cols[c], lines, column=c, name=name)
-    out["ok"] = _parse_ok(list(cols["ok"]), lines, name)
+    out["ok"] = _parse_flag(list(cols["ok"]), lines, name)
     out["frame"] = (parse_numeric(cols["frame"], lines, column="frame", name=name, allow_nan=False).astype(int)
                     if "frame" in cols else np.arange(len(rows)))
     out["line"] = lines

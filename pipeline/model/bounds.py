@@ -79,7 +79,6 @@ from scipy.optimize import nnls
 
 from tympani.vision.errors import InputError
 
-from tympani.pipeline.force.forcelog import parse_numeric, read_table_lines
 from tympani.pipeline.io import atomic_write_csv, atomic_write_json, provenance
 from tympani.pipeline.model.stats import MAX_RHO, cluster_covariance, effective_sample_size, lag1_autocorrelation
 
@@ -91,7 +90,7 @@ __all__ = [
     "FormScore",
     "LackOfFit",
     "SpeedFit",
-    "read_synced",
+    "check_synced",
     "fit_log_model",
     "heldout_score",
     "lack_of_fit",
@@ -184,50 +183,48 @@ class BoundsConfig:
 # --------------------------------------------------------------------------- input
 
 
-def read_synced(path: str | os.PathLike) -> pd.DataFrame:
-    """Read a synced table for the bounds.
+def check_synced(table: pd.DataFrame, source: str | os.PathLike = "synced table") -> pd.DataFrame:
+    """The columns of a synced table the bounds use, checked.
 
     Parameters
     ----------
-    path : str or PathLike
-        CSV with at least ``speed_mm_s``, ``force_g`` (g) and an angle (``theta_con`` or
-        ``theta_tip``, rad); ``trial`` and ``time_s`` (s) are used when present (clusters,
+    table : DataFrame
+        A synced table as :func:`pipeline.force.sync.read_synced` reads it: at least
+        ``speed_mm_s`` (mm/s), ``force_g`` (g) and an angle (``theta_con`` or ``theta_tip``,
+        rad); ``trial`` and ``time_s`` (s) are used when present (clusters,
         autocorrelation), ``saturated`` too.
+    source : str or PathLike
+        The file, named in errors.
 
     Returns
     -------
     DataFrame
+        ``trial`` (``"all"`` when the table has none), the number columns the bounds use that
+        are present, ``saturated`` when present, ``line`` (the file's line of each row, when
+        the table gives it).
 
     Raises
     ------
     InputError
-        Missing or unreadable file, missing columns, non-numeric values (naming the line).
+        Missing columns, no rows, an empty ``speed_mm_s`` (naming the line).
     """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "no such synced table" if not p.exists() else "synced table is not a file")
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(p, f"cannot read synced table ({type(exc).__name__}: {exc})") from None
-    header, rows, lines, _ = read_table_lines(text, name=str(p))
-    missing = [c for c in ("speed_mm_s", "force_g") if c not in header]
-    if not any(a in header for a in ANGLES):
+    missing = [c for c in ("speed_mm_s", "force_g") if c not in table.columns]
+    if not any(a in table.columns for a in ANGLES):
         missing.append("theta_con")
     if missing:
-        raise InputError(p, f"missing column(s) {', '.join(missing)} of a synced table")
-    if not rows:
-        raise InputError(p, "synced table has no rows")
-    cols = dict(zip(header, zip(*rows)))
-    out = pd.DataFrame({"trial": list(cols["trial"]) if "trial" in cols else ["all"] * len(rows)})
+        raise InputError(source, f"missing column(s) {', '.join(missing)} of a synced table")
+    if table.empty:
+        raise InputError(source, "synced table has no rows")
+    lines = table["line"].to_numpy() if "line" in table.columns else np.arange(len(table)) + 2
+    out = pd.DataFrame({"trial": table["trial"].to_numpy() if "trial" in table.columns else ["all"] * len(table)})
     for c in ("speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con", "depth_mm"):
-        if c in cols:
-            out[c] = parse_numeric(cols[c], lines, column=c, name=str(p))
+        if c in table.columns:
+            out[c] = table[c].to_numpy(dtype=float)
     if out["speed_mm_s"].isna().any():
         i = int(np.argmax(out["speed_mm_s"].isna().to_numpy()))
-        raise InputError(f"{p}:{lines[i]}", "speed_mm_s is empty")
-    if "saturated" in cols:
-        out["saturated"] = [c.strip().lower() in ("true", "1", "yes") for c in cols["saturated"]]
+        raise InputError(f"{source}:{lines[i]}", "speed_mm_s is empty")
+    if "saturated" in table.columns:
+        out["saturated"] = table["saturated"].to_numpy(dtype=bool)
     out["line"] = lines
     return out
 
