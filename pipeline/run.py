@@ -351,7 +351,8 @@ def _simulated(scenario: str | None) -> Callable | None:
 
 def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
     from tympani.pipeline.force.sync import read_synced
-    from tympani.pipeline.model.bounds import check_synced, fit_bounds, single_trial_speeds, write_bounds
+    from tympani.pipeline.model.bounds import check_synced, fit_bounds, single_trial_speeds
+    from tympani.pipeline.model.bounds_output import write_bounds
     from tympani.pipeline.report.figures import write_figures
 
     bdir = out / "bounds"

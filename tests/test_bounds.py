@@ -19,8 +19,8 @@ from tympani.pipeline.model.bounds import (
     heldout_score,
     lack_of_fit,
     check_synced,
-    write_bounds,
 )
+from tympani.pipeline.model.bounds_output import write_bounds
 from tympani.pipeline.cli import main
 from tympani.pipeline.force.sync import read_synced
 from tympani.vision.errors import InputError
