@@ -315,7 +315,8 @@ def _sync(manifest_path: Path, manifest: pd.DataFrame, out: Path, cfg: RunConfig
 
 
 def _fit(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.model.identify import fit_synced, read_synced, write_fit
+    from tympani.pipeline.force.sync import read_synced
+    from tympani.pipeline.model.identify import fit_synced, write_fit
 
     fit_dir = out / "fit"
     rec.settings = _settings(cfg.fit)
@@ -349,7 +350,9 @@ def _simulated(scenario: str | None) -> Callable | None:
 
 
 def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
-    from tympani.pipeline.model.bounds import fit_bounds, read_synced, single_trial_speeds, write_bounds
+    from tympani.pipeline.force.sync import read_synced
+    from tympani.pipeline.model.bounds import check_synced, fit_bounds, single_trial_speeds
+    from tympani.pipeline.model.bounds_output import write_bounds
     from tympani.pipeline.report.figures import write_figures
 
     bdir = out / "bounds"
@@ -362,7 +365,7 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
         return
 
     def work() -> None:
-        synced = read_synced(synced_path)
+        synced = check_synced(read_synced(synced_path), synced_path)
         bcfg = cfg.bounds
         if bcfg.angle == "theta_con" and not has_contact_angles(synced):
             bcfg = replace(bcfg, angle="theta_tip")  # tip-only angle tracks: the bounds on the tip angle
@@ -385,7 +388,7 @@ def _bounds(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, prev
 
 def _diagnose(synced_path: Path, out: Path, cfg: RunConfig, rec: StageRecord, previous: dict) -> None:
     from tympani.pipeline.diagnosis.analysis import diagnose
-    from tympani.pipeline.model.identify import read_synced
+    from tympani.pipeline.force.sync import read_synced
     from tympani.pipeline.diagnosis.report import summary_line, write_diagnosis
 
     ddir = out / "diagnosis"

@@ -109,7 +109,7 @@ def test_bench_command_skips_sections(capsys, tiny_video):
 
 def test_render_bench_video_size_keeps_the_phantom(tmp_path):
     """A larger frame shows the same phantom (same scale, px/mm): the registration finds it."""
-    from tympani.vision.frames import to_gray
+    from tympani.vision.greyscale import to_gray
     from tympani.vision.registration import register
 
     poses = []
@@ -126,7 +126,7 @@ def test_render_bench_video_noise_is_a_cameras(tmp_path):
     otherwise the same frames. The noisy one is a bigger file: more to decode."""
     import numpy as np
 
-    from tympani.vision.frames import to_gray
+    from tympani.vision.greyscale import to_gray
 
     clean = render_bench_video(tmp_path / "clean.mp4", n_frames=4, seed=0, noise_sigma=0.0)
     noisy = render_bench_video(tmp_path / "noisy.mp4", n_frames=4, seed=0)

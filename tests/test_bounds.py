@@ -18,10 +18,11 @@ from tympani.pipeline.model.bounds import (
     fit_eq8,
     heldout_score,
     lack_of_fit,
-    read_synced,
-    write_bounds,
+    check_synced,
 )
+from tympani.pipeline.model.bounds_output import write_bounds
 from tympani.pipeline.cli import main
+from tympani.pipeline.force.sync import read_synced
 from tympani.vision.errors import InputError
 
 C1, C2 = 1.4, -0.3  # Eq. (8) as the paper writes it: ln F = c1 theta + c2 (c1 the slope, c2 the intercept)
@@ -231,7 +232,7 @@ def _synced(rng) -> pd.DataFrame:
 def test_write_bounds_files(tmp_path):
     synced = _synced(np.random.default_rng(6))
     synced.to_csv(tmp_path / "synced.csv", index=False)
-    fits, skipped = fit_bounds(read_synced(tmp_path / "synced.csv"))
+    fits, skipped = fit_bounds(check_synced(read_synced(tmp_path / "synced.csv")))
     paths = write_bounds(fits, skipped, tmp_path / "out", input_path=tmp_path / "synced.csv")
     record = json.loads(paths["json"].read_text())
     assert [r["speed_mm_s"] for r in record["by_speed"]] == [0.5, 3.0, 7.5]

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from tympani.vision.edges import (
-    as_float_gray,
     auto_sigma,
     auto_thresholds,
     canny_edges,
@@ -21,8 +20,8 @@ from tympani.vision.edges import (
     orientation_field,
     remove_short_segments,
     subpixel_edges,
-    to_gray,
 )
+from tympani.vision.greyscale import as_float_gray, to_gray
 
 H, W = 240, 320
 

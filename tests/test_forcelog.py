@@ -284,6 +284,21 @@ def test_read_csv_columns_stamps_with_decimals_or_gaps_become_floats(tmp_path):
         read_csv_columns(tmp_path / "q.csv", {"z": "number"})
 
 
+def test_read_csv_columns_text_columns_keep_every_cell_as_text(tmp_path):
+    from tympani.pipeline.force.forcelog import read_csv_columns
+
+    text = "name,x,note\n" + "".join(f" t{i} ,{i},NA\n" for i in range(10)) + "nan,1.5,a # b\n,2,\n"
+    (tmp_path / "t.csv").write_text(text, encoding="utf-8")
+    table = read_csv_columns(tmp_path / "t.csv", {"name": "text", "x": "number", "note": "text"}, chunk_rows=4)
+    assert table.values["name"].tolist() == [f"t{i}" for i in range(10)] + ["nan", ""]
+    assert table.values["note"].tolist() == ["NA"] * 10 + ["a # b", ""]
+    assert table.values["x"].tolist() == [*range(10), 1.5, 2.0]
+    empty = read_csv_columns(tmp_path / "t.csv", lambda h: {"name": "text"}, chunk_rows=4)
+    assert empty.values["name"].dtype == object
+    (tmp_path / "h.csv").write_text("name\n", encoding="utf-8")
+    assert read_csv_columns(tmp_path / "h.csv", {"name": "text"}).values["name"].dtype == object
+
+
 def test_a_big_log_is_read_in_bounded_memory(tmp_path):
     """300,000 rows (35 MB): the arrays the reader holds at its peak stay well below the file's
     size; reading the whole text and splitting it into rows held about ten times the file."""

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from tympani.pipeline.cli import main
+from tympani.pipeline.force.sync import read_synced
 from tympani.pipeline.model.friction import FLAT_NAMES, FrictionParams, LinearPressure, arc_integrals, flat_params, force_from_integrals
 from tympani.pipeline.model.identify import (
     DEFAULT_FREE,
@@ -20,7 +21,6 @@ from tympani.pipeline.model.identify import (
     PARAM_BOUNDS,
     fit_synced,
     fit_to_json,
-    read_synced,
     synthetic_synced,
     validate_synced,
 )
@@ -206,11 +206,11 @@ def test_bad_tables_raise_input_errors(small_table, tmp_path):
     no_contact = small_table.assign(theta_bot=small_table["theta_tip"], theta_con=0.0)
     with pytest.raises(InputError, match="no row has contact"):
         validate_synced(no_contact, "t.csv")
-    with pytest.raises(InputError, match="no such file"):
+    with pytest.raises(InputError, match="no such synced table"):
         read_synced(tmp_path / "missing.csv")
     empty = tmp_path / "empty.csv"
     empty.write_text("")
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match="no header row"):
         read_synced(empty)
     # NaN rows (frames that could not be measured) are dropped with a note
     holes = small_table.copy()
@@ -290,7 +290,7 @@ def test_cli_fit_happy_path(capsys, tmp_path):
 
 def test_cli_fit_bad_input_exits_2(capsys, tmp_path):
     code, _, err = _run(capsys, "fit", tmp_path / "missing.csv", "--out", tmp_path / "o")
-    assert code == 2 and "no such file" in _one_line(err)
+    assert code == 2 and "no such synced table" in _one_line(err)
     bad = tmp_path / "bad.csv"
     bad.write_text("trial,speed_mm_s,time_s,force_g\nA,1,0,0\n")
     code, _, err = _run(capsys, "fit", bad, "--out", tmp_path / "o")
@@ -301,4 +301,4 @@ def test_cli_fit_bad_input_exits_2(capsys, tmp_path):
     table.loc[7, "theta_tip"] = "n/a?"
     table.to_csv(text, index=False)
     code, _, err = _run(capsys, "fit", text, "--out", tmp_path / "o")
-    assert code == 2 and "non-numeric" in _one_line(err)
+    assert code == 2 and _one_line(err) == f"tympani: {text}:9: theta_tip 'n/a?' is not a number"

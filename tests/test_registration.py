@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tympani.vision.edges import to_gray
+from tympani.vision.greyscale import to_gray
 from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, backbone_frame, channel_polygon, entry_frame, entry_walls
 from tympani.vision.registration import (
     Registration,

@@ -14,13 +14,16 @@ from force_synth import Trial, make_trial, write_experiment, write_trial
 from tympani.pipeline.cli import main
 from tympani.pipeline.force.sync import (
     SYNC_COLUMNS,
+    SYNC_NUMBER_COLUMNS,
     SyncConfig,
     estimate_offset,
     interpolate_angles,
     read_angles_table,
+    read_synced,
     report_path,
     sync_manifest,
     sync_trial,
+    write_sync,
 )
 from tympani.vision.errors import InputError
 
@@ -271,3 +274,75 @@ def test_depth_ramp_without_standing_frames_falls_back_to_force():
     assert 0.2 <= np.sqrt(np.mean(z ** 2)) <= 1.5
     with pytest.raises(InputError, match="standing"):
         estimate_offset(angles, log, cfg=SyncConfig(signal="depth"), where="m.csv:2")
+
+
+# --------------------------------------------------------------------------- reading the synced table
+
+
+def test_read_synced_reads_what_write_sync_writes(tmp_path):
+    manifest = _experiment(tmp_path, np.random.default_rng(17))
+    result = sync_manifest(manifest)
+    path, _ = write_sync(result, tmp_path / "synced.csv")
+    table = read_synced(path)
+    written = result.table
+    assert list(table.columns) == [*written.columns, "line"]
+    assert table["trial"].tolist() == written["trial"].tolist()
+    assert table["saturated"].dtype == bool and table["saturated"].tolist() == written["saturated"].tolist()
+    for column in SYNC_NUMBER_COLUMNS:
+        np.testing.assert_array_equal(table[column].to_numpy(float), written[column].to_numpy(float))
+    assert table["line"].tolist() == list(range(2, len(written) + 2))
+    # the same numbers, bit for bit, as pandas' parser gives
+    pandas = pd.read_csv(path)
+    for column in SYNC_NUMBER_COLUMNS:
+        assert np.array_equal(table[column].to_numpy(float), pandas[column].to_numpy(float), equal_nan=True)
+
+
+def test_read_synced_comments_and_hash_in_a_field(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("# synced by hand\ntrial,speed_mm_s,force_g,theta_con,saturated,note\n"
+                    "  # a comment line may be indented\n\n"
+                    "a#1,0.5,1.5,0.2,yes,see # 3\n"
+                    "b,1,2.5,,F,\n")
+    table = read_synced(path)
+    assert table["trial"].tolist() == ["a#1", "b"] and table["note"].tolist() == ["see # 3", ""]
+    assert table["line"].tolist() == [5, 6] and table["saturated"].tolist() == [True, False]
+    np.testing.assert_array_equal(table["theta_con"].to_numpy(), [0.2, np.nan])
+    path.write_text("trial,speed_mm_s,force_g,theta_con\na,0.5,1.5 # gram,0.2\n")
+    with pytest.raises(InputError, match="force_g '1.5 # gram' is not a number") as info:
+        read_synced(path)
+    assert info.value.path == f"{path}:2"
+
+
+@pytest.mark.parametrize("content, fragment", [
+    (None, "no such synced table"),
+    ("", "no header row"),
+    ("trial,speed_mm_s\n# only a comment\n", "synced table has no rows"),
+    ("trial,speed_mm_s\na,1\nb,1,2\n", "s.csv:3: 3 fields, but the header (line 1) has 2"),
+    ("trial,speed_mm_s\na,1\nb,fast\n", "s.csv:3: speed_mm_s 'fast' is not a number"),
+    ("trial,speed_mm_s,saturated\na,1,maybe\n", "s.csv:2: saturated 'maybe' is not true or false"),
+])
+def test_read_synced_bad_input_names_the_line(tmp_path, content, fragment):
+    path = tmp_path / "s.csv"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(InputError) as info:
+        read_synced(path)
+    assert fragment in str(info.value)
+
+
+@pytest.mark.parametrize("command", ["fit", "bounds", "diagnose"])
+def test_every_analysis_reads_a_hash_in_mid_line_alike(tmp_path, capsys, command):
+    from tympani.pipeline.model.friction import FrictionParams
+    from tympani.pipeline.model.identify import synthetic_synced
+
+    table = synthetic_synced(FrictionParams(), rng=np.random.default_rng(3), trials=2, samples_per_trial=30)
+    text = table.to_csv(index=False).splitlines()
+    fields = text[5].split(",")
+    fields[text[0].split(",").index("force_g")] += " # note"  # pandas' comment="#" would cut the line here
+    text[5] = ",".join(fields)
+    path = tmp_path / "synced.csv"
+    path.write_text("\n".join(text) + "\n")
+    code, _, err = _run(capsys, command, path, "--out", tmp_path / "out")
+    lines = _err_lines(err)
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0].startswith(f"tympani: {path}:6: ") and "is not a number" in lines[0]

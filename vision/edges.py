@@ -2,7 +2,7 @@
 
 The first stages of the measurement (docs/how-it-works.md)::
 
-    frame ─▶ to_gray ─▶ detect_edges (Gaussian, Sobel, Canny, hysteresis) ─▶ edge_segments
+    frame ─▶ greyscale.to_gray ─▶ detect_edges (Gaussian, Sobel, Canny, hysteresis) ─▶ edge_segments
 
 Canny runs on our own float gradients (OpenCV's ``Canny(dx, dy, ...)`` overload with 16-bit
 derivatives), so smoothing happens in float and the result does not depend on whether the
@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from tympani.vision.greyscale import as_float_gray, is_float_gray
+
 __all__ = [
     "EdgeMap",
-    "to_gray",
-    "as_float_gray",
     "gradients",
     "auto_thresholds",
     "noise_gradient",
@@ -86,100 +86,7 @@ class EdgeMap:
         return self.mask.shape  # type: ignore[return-value]
 
 
-# --------------------------------------------------------------------------- greyscale
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """Convert a frame to an 8-bit greyscale image.
-
-    Parameters
-    ----------
-    image : ndarray
-        ``(h, w)`` grey, ``(h, w, 1)``, ``(h, w, 3)`` BGR or ``(h, w, 4)`` BGRA. ``uint8`` is
-        taken as 0–255, ``uint16`` as 0–65535, ``bool`` as 0/255, floats as 0–1 when their
-        maximum is at most 1 and as 0–255 otherwise (values outside are clipped).
-
-    Returns
-    -------
-    ndarray of uint8, shape (h, w)
-        Grey levels 0–255.
-    """
-    image = np.asarray(image)
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
-        raise ValueError(f"expected a (h, w), (h, w, 3) or (h, w, 4) image, got shape {image.shape}")
-    if image.dtype == np.uint8:
-        img8 = image
-    elif image.dtype == np.bool_:
-        img8 = image.astype(np.uint8) * 255
-    elif image.dtype == np.uint16:
-        img8 = (image >> 8).astype(np.uint8)
-    else:
-        img8 = np.clip(np.rint(as_float_gray(image)), 0, 255).astype(np.uint8)
-    if img8.ndim == 3:
-        code = cv2.COLOR_BGR2GRAY if img8.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        img8 = cv2.cvtColor(np.ascontiguousarray(img8), code)
-    return np.ascontiguousarray(img8)
-
-
-def as_float_gray(image: np.ndarray) -> np.ndarray:
-    """A greyscale float32 image on the 0–255 scale, without rounding to 8 bits.
-
-    Parameters
-    ----------
-    image : ndarray
-        As for :func:`to_gray`. Colour images are converted with the BT.601 weights.
-
-    Returns
-    -------
-    ndarray of float32, shape (h, w)
-        Grey levels on the 0–255 scale.
-    """
-    image = np.asarray(image)
-    if image.ndim == 3 and image.shape[2] == 1:
-        image = image[:, :, 0]
-    if image.dtype == np.uint8:
-        out = image.astype(np.float32)
-    elif image.dtype == np.uint16:
-        out = image.astype(np.float32) / 257.0
-    elif image.dtype == np.bool_:
-        out = image.astype(np.float32) * 255.0
-    elif np.issubdtype(image.dtype, np.integer):
-        out = np.clip(image, 0, 255).astype(np.float32)
-    else:
-        out = np.array(image, dtype=np.float32, order="C")  # our own copy, changed in place
-        if out.size:
-            cv2.patchNaNs(out.reshape(-1, 1), 0.0)  # NaN -> 0 in place; +-inf go to 255 and 0 in the clip
-        largest = float(out.max()) if out.size else 0.0
-        if largest <= 1.0:
-            out *= 255.0
-        np.clip(out, 0.0, 255.0, out=out)
-    if out.ndim == 3:
-        if out.shape[2] == 4:
-            out = out[:, :, :3]
-        out = out @ np.array([0.114, 0.587, 0.299], np.float32)  # B, G, R
-    if out.ndim != 2:
-        raise ValueError(f"expected a (h, w) or (h, w, 3) image, got shape {image.shape}")
-    return np.ascontiguousarray(out, dtype=np.float32)
-
-
 # --------------------------------------------------------------------------- gradients, Canny
-
-
-def _is_float_gray(image: np.ndarray) -> bool:
-    """Whether :func:`as_float_gray` would return ``image``'s values unchanged (as a copy).
-
-    True for a C-contiguous 2-D float32 image without NaNs whose grey levels lie in
-    ``[0, 255]`` with a maximum above 1 (a maximum of at most 1 means the 0–1 scale), such
-    as :func:`vision.registration.combine_frames` returns. Two reductions, no copy.
-    """
-    if not (isinstance(image, np.ndarray) and image.dtype == np.float32 and image.ndim == 2):
-        return False
-    if not image.flags.c_contiguous or image.size == 0:
-        return False
-    largest = float(image.max())  # NaN if any NaN: the comparison below is then False
-    return 1.0 < largest <= 255.0 and float(image.min()) >= 0.0
 
 
 def gradients(gray: np.ndarray, sigma_px: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +104,7 @@ def gradients(gray: np.ndarray, sigma_px: float = 1.5) -> tuple[np.ndarray, np.n
     gx, gy : ndarray of float32, shape (h, w)
         d/dx (along columns) and d/dy (along rows), grey levels per px.
     """
-    img = gray if _is_float_gray(gray) else as_float_gray(gray)
+    img = gray if is_float_gray(gray) else as_float_gray(gray)
     if sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), float(sigma_px), borderType=cv2.BORDER_REPLICATE)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125, borderType=cv2.BORDER_REPLICATE)

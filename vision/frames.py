@@ -63,7 +63,6 @@ __all__ = [
     "FolderFrames",
     "IMAGE_SUFFIXES",
     "open_frames",
-    "to_gray",
     "check_decoder_threads",
     "LensCalibration",
     "undistorter",
@@ -146,46 +145,6 @@ def _natural_key(name: str) -> list:
     """Sort key that orders ``frame2`` before ``frame10`` (and agrees with plain order on
     zero-padded names)."""
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
-
-
-def to_gray(image: np.ndarray, *, as_float: bool = False) -> np.ndarray:
-    """Greyscale version of a decoded image.
-
-    Parameters
-    ----------
-    image : ndarray
-        ``(h, w)``, ``(h, w, 1)``, ``(h, w, 3)`` BGR or ``(h, w, 4)`` BGRA image; ``uint8``
-        (0–255), ``uint16`` (0–65535) or float (0–1, values outside are clipped).
-    as_float : bool
-        False: return ``uint8`` grey levels 0–255. True: return ``float32`` intensities in
-        [0, 1] (the ``uint8`` levels divided by 255).
-
-    Returns
-    -------
-    ndarray, shape (h, w)
-        ``uint8`` or ``float32`` grey image (a new array; the input is not modified).
-    """
-    img = np.asarray(image)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (3, 4)):
-        raise ValueError(f"expected a (h, w), (h, w, 3) or (h, w, 4) image, got shape {img.shape}")
-    if img.dtype != np.uint8:
-        if img.dtype == np.uint16:
-            img = (img.astype(np.uint32) * 255 + 32767) // 65535
-        elif np.issubdtype(img.dtype, np.floating):
-            img = np.clip(np.nan_to_num(img), 0.0, 1.0) * 255.0 + 0.5
-        else:
-            img = np.clip(img, 0, 255)
-        img = img.astype(np.uint8)
-    if img.ndim == 3:
-        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        grey = cv2.cvtColor(np.ascontiguousarray(img), code)
-    else:
-        grey = img.copy()
-    if as_float:
-        return grey.astype(np.float32) * np.float32(1.0 / 255.0)
-    return grey
 
 
 # --------------------------------------------------------------------------- sources

@@ -60,7 +60,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     """Run ``tympani diagnose``."""
     from tympani.pipeline.diagnosis.analysis import diagnose
     from tympani.pipeline.diagnosis.config import DiagnosisConfig
-    from tympani.pipeline.model.identify import read_synced
+    from tympani.pipeline.force.sync import read_synced
     from tympani.pipeline.diagnosis.report import summary_line, write_diagnosis
 
     table = read_synced(args.synced)

@@ -197,7 +197,8 @@ def run_fit(args: argparse.Namespace) -> int:
     """Run ``tympani fit``; returns the exit status."""
     import os
 
-    from tympani.pipeline.model.identify import DEFAULT_FREE, FitOptions, fit_synced, read_synced, write_fit
+    from tympani.pipeline.force.sync import read_synced
+    from tympani.pipeline.model.identify import DEFAULT_FREE, FitOptions, fit_synced, write_fit
 
     table = read_synced(args.synced)
     free = tuple(args.free) if args.free else DEFAULT_FREE

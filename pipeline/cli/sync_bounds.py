@@ -163,11 +163,13 @@ def _simulated(args: argparse.Namespace):
 
 def run_bounds(args: argparse.Namespace) -> int:
     """Run ``tympani bounds``; 0 on success, 2 on bad input (no speed could be fitted)."""
-    from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds, form_label, read_synced, single_trial_speeds, write_bounds
+    from tympani.pipeline.force.sync import read_synced
+    from tympani.pipeline.model.bounds import BoundsConfig, check_synced, fit_bounds, form_label, single_trial_speeds
+    from tympani.pipeline.model.bounds_output import write_bounds
     from tympani.vision.errors import InputError
 
     cfg = BoundsConfig(level=args.level, se=args.se, angle=args.angle)
-    synced = read_synced(args.synced)
+    synced = check_synced(read_synced(args.synced), args.synced)
     try:
         fits, skipped = fit_bounds(synced, cfg)
     except InputError as exc:

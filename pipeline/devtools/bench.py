@@ -247,7 +247,8 @@ def _decode_s(path: Path, fps: float | None, decoder_threads: int | None = None)
     """Frames, wall time (s) and (height, width) of opening ``path`` (as the extraction does,
     which reads its first frame for the size), decoding it (decoder on ``decoder_threads``,
     None: its default) and converting to grey."""
-    from tympani.vision.frames import open_frames, to_gray
+    from tympani.vision.frames import open_frames
+    from tympani.vision.greyscale import to_gray
 
     t0 = time.perf_counter()
     source = open_frames(path, fps=fps, decoder_threads=decoder_threads)

@@ -65,10 +65,11 @@ def force_drops(synced_path: str | Path) -> pd.DataFrame:
         ``change_pct`` (measured), ``paper_pct`` (the paper's experiments, NaN where it gives none)
         and ``model_pct`` (the paper's model, scenario S4, from the slowest speed to this one).
     """
+    from tympani.pipeline.force.sync import read_synced
     from tympani.pipeline.model.paper import PAPER_DROPS_PCT, peak_force_change
     from tympani.pipeline.synthetic.family_a import peak_force_drop
 
-    table = peak_force_drop(pd.read_csv(synced_path))
+    table = peak_force_drop(read_synced(synced_path))
     ref = float(table["speed_mm_s"].iloc[0])
     table["paper_pct"] = [PAPER_DROPS_PCT.get(float(v), np.nan) for v in table["speed_mm_s"]]
     table["model_pct"] = [0.0 if v == ref else peak_force_change("S4", ref, float(v)) for v in table["speed_mm_s"]]

@@ -1,6 +1,6 @@
 """Sim-to-real gap diagnosis (docs/diagnosis.md; ``diagnosis.json`` in docs/file-formats.md).
 
-``tympani diagnose SYNCED --out DIR`` calls :func:`pipeline.model.identify.read_synced`,
+``tympani diagnose SYNCED --out DIR`` calls :func:`pipeline.force.sync.read_synced`,
 :func:`diagnose` and :func:`pipeline.diagnosis.report.write_diagnosis`. The steps are modules of
 :mod:`pipeline.diagnosis`: :mod:`~pipeline.diagnosis.prepare` (the data),
 :mod:`~pipeline.diagnosis.kernels` and :mod:`~pipeline.diagnosis.candidates` (the models and their

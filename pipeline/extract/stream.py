@@ -41,7 +41,8 @@ import numpy as np
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.records import Check, Epoch, ExtractLog, LostSpan, MeasuredFrame
 from tympani.vision.errors import InputError, one_line
-from tympani.vision.frames import Frame, FrameSource, LensCalibration, to_gray, undistorter
+from tympani.vision.frames import Frame, FrameSource, LensCalibration, undistorter
+from tympani.vision.greyscale import to_gray
 
 __all__ = [
     "Decoded",

@@ -26,7 +26,8 @@ from tympani.pipeline.extract.kinematics import KinematicsConfig, flag_kinematic
 from tympani.pipeline.extract.stream import (Check, Epoch, ExtractLog, frame_row, lens_undistorter, measure_frames,
                                              try_measure)
 from tympani.vision.errors import InputError, one_line
-from tympani.vision.frames import Frame, FrameSource, open_frames, to_gray
+from tympani.vision.frames import Frame, FrameSource, open_frames
+from tympani.vision.greyscale import to_gray
 from tympani.vision.geometry import ElectrodeArray
 
 __all__ = [

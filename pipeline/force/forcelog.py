@@ -269,8 +269,9 @@ def read_table_lines(
 CSV_CHUNK_ROWS = 20_000
 
 #: Kinds of column :func:`read_csv_columns` parses: ``"stamp"`` keeps integer text exact
-#: (int64), ``"number"`` is float.
-ColumnKind = Literal["stamp", "number"]
+#: (int64), ``"number"`` is float, ``"text"`` keeps each cell as a stripped ``str`` (an empty
+#: cell is ``""``; no text means a missing value).
+ColumnKind = Literal["stamp", "number", "text"]
 
 _NA_VALUES = sorted({v for t in _NAN_TEXT for v in (t, t.upper(), t.capitalize())})
 
@@ -303,7 +304,7 @@ class CsvColumns:
     header : CsvHeader
     values : dict of str to ndarray
         Each requested column: int64 for a ``"stamp"`` column whose every cell is an integer,
-        else float64 (NaN for empty and NaN cells).
+        object (``str``) for a ``"text"`` column, else float64 (NaN for empty and NaN cells).
     lines : ndarray of int64
         1-based line number of each data row.
     comments : tuple of str
@@ -346,22 +347,30 @@ def _chunk_values(
 
     The C parser reads numbers; a column it could not read as numbers (or with an infinity, or
     a stamp column that is not all integers) is re-read as text and converted by
-    :func:`parse_numeric`, which names the first bad cell's line.
+    :func:`parse_numeric`, which names the first bad cell's line. Text columns are read as
+    text, with no missing-value markers.
     """
     import io
 
     data = text.encode("utf-8")  # the parser reads bytes; a text buffer would hold 4 bytes a character
 
-    def parse(as_text: Sequence[int]) -> pd.DataFrame:
+    def parse(as_text: Sequence[int], usecols: Sequence[int], *, markers: bool = True) -> pd.DataFrame:
         try:
-            return pd.read_csv(io.BytesIO(data), header=None, usecols=list(index), dtype={i: object for i in as_text},
-                               keep_default_na=False, na_values=_NA_VALUES, skipinitialspace=True, engine="c")
+            return pd.read_csv(io.BytesIO(data), header=None, usecols=list(usecols), dtype={i: object for i in as_text},
+                               keep_default_na=False, na_values=_NA_VALUES if markers else None,
+                               na_filter=markers, skipinitialspace=True, engine="c")
         except (pd.errors.ParserError, ValueError) as exc:
             raise InputError(f"{name}:{int(lines[0])}", f"cannot read the rows from here on as CSV ({one_line(exc)})") from None
 
-    frame = parse(())
+    text_index = [i for i, kind in zip(index, kinds) if kind == "text"]
+    number_index = [i for i, kind in zip(index, kinds) if kind != "text"]
+    frame = parse((), number_index) if number_index else None
+    texts_frame = parse(text_index, text_index, markers=False) if text_index else None
     out = []
     for i, kind, column in zip(index, kinds, names):
+        if kind == "text":
+            out.append(np.array([str(c).strip() for c in texts_frame[i]], dtype=object))
+            continue
         col = frame[i]
         if kind == "stamp" and col.dtype.kind == "i":
             out.append(col.to_numpy(np.int64))
@@ -378,7 +387,7 @@ def _chunk_values(
             if not np.isinf(values).any():
                 out.append(values)
                 continue
-        cells = parse((i,))[i].to_numpy(object)
+        cells = parse((i,), number_index)[i].to_numpy(object)
         if kind == "stamp":
             try:
                 out.append(cells.astype(np.int64))  # int() of each cell: exact, whitespace allowed
@@ -408,7 +417,7 @@ def read_csv_columns(
     source : str, PathLike or text stream
         The file, or an open text stream (e.g. ``io.StringIO``).
     columns : mapping or callable
-        Column name -> ``"stamp"`` or ``"number"``; or a function of the :class:`CsvHeader`
+        Column name -> ``"stamp"``, ``"number"`` or ``"text"`` (:data:`ColumnKind`); or a function of the :class:`CsvHeader`
         returning that mapping (it may raise a better-worded error for a header it refuses).
     name : str, optional
         The file's name in messages (default: the path).
@@ -479,8 +488,8 @@ def read_csv_columns(
     for j, column in enumerate(wanted):
         pieces = [p[j] for p in parts]
         if not pieces:
-            values[column] = np.empty(0, dtype=np.int64 if wanted[column] == "stamp" else np.float64)
-        elif all(p.dtype.kind == "i" for p in pieces):
+            values[column] = np.empty(0, dtype={"stamp": np.int64, "text": object}.get(wanted[column], np.float64))
+        elif wanted[column] == "text" or all(p.dtype.kind == "i" for p in pieces):
             values[column] = np.concatenate(pieces)
         else:
             values[column] = np.concatenate([p.astype(np.float64) for p in pieces])

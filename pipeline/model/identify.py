@@ -1,6 +1,6 @@
 """Identify friction and pressure parameters of the paper's friction model from a synced table.
 
-``tympani fit SYNCED --out DIR`` calls :func:`read_synced`, :func:`fit_synced` and
+``tympani fit SYNCED --out DIR`` calls :func:`pipeline.force.sync.read_synced`, :func:`fit_synced` and
 :func:`write_fit`.
 
 Method
@@ -111,7 +111,6 @@ __all__ = [
     "FitOptions",
     "ParamEstimate",
     "FitResult",
-    "read_synced",
     "validate_synced",
     "not_moving",
     "fit_synced",
@@ -430,30 +429,6 @@ def validate_synced(
     out["trial"] = out["trial"].astype(str)
     out = out.sort_values(["trial", "time_s"], kind="stable").reset_index(drop=True)
     return out, notes
-
-
-def read_synced(path: str | os.PathLike) -> pd.DataFrame:
-    """Read a synced table (CSV, ``#`` lines are comments) as it is.
-
-    The rows are checked by :func:`fit_synced` (pass ``source=path`` so errors name the file).
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The CSV file.
-
-    Raises
-    ------
-    vision.errors.InputError
-        The file is missing, not a file, empty or not CSV.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "no such file" if not p.exists() else "not a file")
-    try:
-        return pd.read_csv(p, comment="#", dtype={"trial": str})
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, OSError) as exc:
-        raise InputError(p, f"cannot read as CSV: {exc}") from None
 
 
 # --------------------------------------------------------------------------- fit internals

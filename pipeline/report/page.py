@@ -84,6 +84,19 @@ def _csv(path: Path, **kwargs: Any) -> pd.DataFrame | None:
         return None
 
 
+def _synced(path: Path) -> pd.DataFrame | None:
+    """The synced table's ``trial``, ``speed_mm_s`` and ``theta_con``; None when it cannot be read."""
+    from tympani.pipeline.force.sync import read_synced
+    from tympani.vision.errors import InputError
+
+    try:
+        table = read_synced(path)
+    except InputError:
+        return None
+    wanted = ["trial", "speed_mm_s", "theta_con"]
+    return table[wanted] if all(c in table.columns for c in wanted) else None
+
+
 def load_report_data(out_dir: str | os.PathLike) -> dict:
     """Everything the report shows, read from an output folder of ``tympani run``.
 
@@ -104,7 +117,7 @@ def load_report_data(out_dir: str | os.PathLike) -> dict:
     run = _json(out / "run.json") or {}
     stages = run.get("stages", {})
     synced = None
-    table = _csv(out / "synced.csv", usecols=["trial", "speed_mm_s", "theta_con"])
+    table = _synced(out / "synced.csv")
     if table is not None and stages.get("sync", {}).get("status") in ("ok", "partial", "skipped"):
         synced = dict(rows=len(table), rows_with_angles=int(table["theta_con"].notna().sum()),
                       speeds_mm_s=sorted(float(v) for v in table["speed_mm_s"].unique()),

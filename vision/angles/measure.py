@@ -19,22 +19,16 @@ from tympani.vision.angles.plan import HasPose, MeasurePlan, prepare_measurement
 from tympani.vision.angles.results import results_batch
 from tympani.vision.angles.survey import Survey, survey_batch
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, ElectrodeArray, Phantom
+from tympani.vision.greyscale import as_float_gray, to_gray
 
 
-def _to_gray(frame: np.ndarray) -> np.ndarray:
-    """A 2-D uint8 or float32 grey image (grey levels 0–255) from a grey, BGR or BGRA frame."""
+def _grey_levels(frame: np.ndarray) -> np.ndarray:
+    """A 2-D grey image (0–255 scale) of a frame: ``uint8`` for a ``uint8`` frame, else float32
+    with the float precision kept (:mod:`vision.greyscale`)."""
     a = np.asarray(frame)
-    if a.ndim == 3 and a.shape[2] == 1:
-        a = a[..., 0]
-    if a.ndim == 3 and a.shape[2] in (3, 4):
-        if a.dtype not in (np.uint8, np.float32):
-            a = a.astype(np.float32)
-        a = cv2.cvtColor(a, cv2.COLOR_BGRA2GRAY if a.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-    if a.ndim != 2 or a.size == 0:
+    if a.size == 0:
         raise ValueError(f"a frame must be 2-D grey or BGR(A) colour, not shape {a.shape}")
-    if a.dtype not in (np.uint8, np.float32):
-        a = a.astype(np.float32)
-    return a
+    return to_gray(a) if a.dtype == np.uint8 else as_float_gray(a)
 
 
 def _extras(contrast: float, c: CentreLine, step_mm: float) -> dict[str, float]:
@@ -93,7 +87,7 @@ def measure_frame(
     """
     t0 = time.perf_counter()
     try:
-        img = _to_gray(gray)
+        img = _grey_levels(gray)
     except (ValueError, TypeError, cv2.error) as exc:
         return failure(f"bad frame: {exc}")
     if not isinstance(registration, MeasurePlan):
@@ -148,7 +142,7 @@ def measure_frames_batch(
     where: list[int] = []
     for i, gray in enumerate(grays):
         try:
-            img = _to_gray(gray)
+            img = _grey_levels(gray)
         except (ValueError, TypeError, cv2.error):
             img = None
         if img is None or img.shape[:2] != plan.image_shape:

@@ -10,9 +10,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from tympani.vision.greyscale import as_float_gray
 from tympani.vision.edges import (
     EdgeMap,
-    as_float_gray,
     doubled_angles,
     gradients,
     sigma_from_magnitude,

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tympani.vision.edges import EdgeMap, as_float_gray, detect_edges, to_gray
+from tympani.vision.edges import EdgeMap, detect_edges
+from tympani.vision.greyscale import as_float_gray, to_gray
 from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, Phantom
 from tympani.vision.registration.config import Registration, RegistrationConfig
 from tympani.vision.registration.model import WallModel, wall_model
