@@ -433,15 +433,6 @@ def _run_stage(name: str, rec: StageRecord, fn: Callable[[], Any], errors: list[
 # --------------------------------------------------------------------------- trials table
 
 
-def _frames(path: Path) -> tuple[float, float]:
-    """(frames, measured frames) of an angles table, NaN when unreadable."""
-    try:
-        ok = pd.read_csv(path, usecols=["ok"], comment="#")["ok"].astype(str).str.strip().str.lower()
-    except Exception:  # noqa: BLE001 - a table sync rejected is reported there
-        return float("nan"), float("nan")
-    return float(len(ok)), float(ok.isin(["true", "1", "yes", "t", "y"]).sum())
-
-
 def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_info: dict | None) -> pd.DataFrame:
     """One row a manifest trial: inputs, frames measured, sync outcome, the first error.
 
@@ -463,6 +454,8 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
         (status), ``sync`` (status), ``sync_method, video_t0_s`` (s), ``force_samples,
         samples_with_angles, warnings`` (count), ``error`` (one line or empty).
     """
+    from tympani.pipeline.extract.video import measured_counts
+
     ex = {r["trial"]: r for r in extract.to_dict("records")} if len(extract) else {}
     sy = {t["trial"]: t for t in (sync_info or {}).get("trials", [])}
     rows = []
@@ -472,7 +465,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
         from_video = not isinstance(angles, str) or not angles
         e, s = ex.get(trial, {}), sy.get(trial, {})
         apath = Path(angles) if not from_video else out / "angles" / f"{trial}.angles.csv"
-        frames, ok = _frames(apath) if apath.is_file() else (float("nan"), float("nan"))
+        frames, ok = (measured_counts(apath) if apath.is_file() else None) or (float("nan"), float("nan"))
         error = e.get("error") if e.get("status") == "failed" else s.get("error")
         rows.append(dict(
             trial=trial, speed_mm_s=float(r["speed_mm_s"]), source="video" if from_video else "angles",

@@ -557,6 +557,23 @@ def test_parse_label_errors():
             parse_label(tokens)
 
 
+def test_labels_file_comments_and_errors(tmp_path):
+    """A labels CSV: ``#`` starts a comment only at the start of a line, blanks around values are
+    fine, and a bad value is a one-line error naming its file and column."""
+    from tympani.pipeline.extract.annotate import read_labels
+
+    good = tmp_path / "labels.csv"
+    good.write_text("# clicked by hand\nframe, tip_x_px, tip_y_px, bot_x_px, bot_y_px\n4, 10.5, 20, , \n"
+                    "# frame 2 next\n2, 1, 2, 3, 4\n", encoding="utf-8")
+    table = read_labels(good)
+    assert table["frame"].tolist() == [2, 4]
+    assert table.loc[1, ["tip_x_px", "tip_y_px"]].tolist() == [10.5, 20.0] and np.isnan(table.loc[1, "bot_x_px"])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,tip_x_px,tip_y_px,bot_x_px,bot_y_px\n1,2 # px,3,4,5\n", encoding="utf-8")
+    with pytest.raises(InputError, match=r"bad.csv.*non-numeric value in column tip_x_px"):
+        read_labels(bad)
+
+
 def test_measure_batch_validation():
     assert ExtractConfig().measure_batch >= 1
     with pytest.raises(ValueError, match="measure_batch"):

@@ -202,8 +202,8 @@ def test_zero_log_and_zero_seconds(tmp_path, capsys):
     (tmp_path / "log.toml").write_text(log_fmt)
     (tmp_path / "sec.toml").write_text(lab_format(trial, zero="2.0"))
     (tmp_path / "m.csv").write_text("trial,speed_mm_s,force,depth,angles,format\n"
-                                    f"A,1.25,z_force.csv,z_stage.csv,z_epoch.csv,log.toml\n"
-                                    f"B,1.25,z_force.csv,,z_angles.csv,sec.toml\n")
+                                    "A,1.25,z_force.csv,z_stage.csv,z_epoch.csv,log.toml\n"
+                                    "B,1.25,z_force.csv,,z_angles.csv,sec.toml\n")
     code, out, err = _run(capsys, "sync", "--manifest", tmp_path / "m.csv", "--out", tmp_path / "s.csv")
     assert code == 0, err
     s = pd.read_csv(tmp_path / "s.csv")

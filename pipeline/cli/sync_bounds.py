@@ -134,15 +134,15 @@ def _simulated(args: argparse.Namespace):
     if args.simulated:
         import pandas as pd
 
+        from tympani.pipeline.force.forcelog import read_csv_columns
         from tympani.vision.errors import InputError
 
         path = Path(args.simulated)
         if not path.is_file():
             raise InputError(path, "no such simulation table")
-        try:
-            table = pd.read_csv(path, comment="#")
-        except Exception as exc:  # noqa: BLE001 - any parse failure is bad input
-            raise InputError(path, f"cannot read simulation table ({type(exc).__name__}: {exc})") from None
+        numeric = {"speed_mm_s", "time_s", "depth_mm", "theta_tip", "theta_bot", "theta_con", "force_g"}
+        read = read_csv_columns(path, lambda header: {c: "number" if c in numeric else "text" for c in header.columns})
+        table = pd.DataFrame(read.values)
         missing = [c for c in ("speed_mm_s", "theta_con", "force_g") if c not in table.columns]
         if missing:
             raise InputError(path, f"missing column(s) {', '.join(missing)} of a simulation table")

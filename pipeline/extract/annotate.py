@@ -31,6 +31,7 @@ import pandas as pd
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.stream import ExtractLog, measure_frames
 from tympani.pipeline.extract.video import trial_name
+from tympani.pipeline.force.forcelog import read_csv_columns
 from tympani.pipeline.io import atomic_write_bytes, atomic_write_csv
 from tympani.vision.drawing import annotate_frame
 from tympani.vision.errors import InputError
@@ -134,11 +135,8 @@ def read_labels(path: str | os.PathLike) -> pd.DataFrame:
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "no such labels file")
-    try:
-        table = pd.read_csv(p, comment="#", skipinitialspace=True)
-    except Exception as exc:
-        raise InputError(p, f"cannot read labels CSV ({' '.join(str(exc).split())})") from None
-    return _validate_labels(table, str(p))
+    table = pd.DataFrame(read_csv_columns(p, lambda header: {c: "text" for c in header.columns}).values)
+    return _validate_labels(table.apply(lambda column: column.str.strip()), str(p))
 
 
 def label_angles(label: pd.Series | dict, registration: Any, phantom: Phantom) -> dict:

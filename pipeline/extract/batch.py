@@ -34,7 +34,7 @@ import pandas as pd
 
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.manifest import VideoItem, video_items
-from tympani.pipeline.extract.video import extract_video, trial_name
+from tympani.pipeline.extract.video import extract_video, measured_counts, trial_name
 from tympani.pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from tympani.vision.errors import InputError, is_input_error, one_line
 
@@ -61,16 +61,6 @@ def output_paths(out_dir: str | os.PathLike, trial: str) -> dict[str, Path]:
         "registration": out / f"{trial}.registration.json",
         "provenance": out / f"{trial}.provenance.json",
     }
-
-
-def _count_ok(csv_path: Path) -> tuple[int, int] | None:
-    """(rows, ok rows) of an existing angles table, None when it cannot be read."""
-    try:
-        ok = pd.read_csv(csv_path, usecols=["ok"], true_values=["true", "True", "TRUE"],
-                         false_values=["false", "False", "FALSE"])["ok"]
-    except Exception:
-        return None
-    return len(ok), int((ok == True).sum())  # noqa: E712 - ok may be object dtype
 
 
 def _summary(trial: str, path: Path, status: str, **values: Any) -> dict:
@@ -133,7 +123,7 @@ def process_video(
     path = Path(path)
     files = output_paths(out_dir, name)
     if not overwrite and all(f.exists() for f in files.values()):
-        counts = _count_ok(files["angles"])
+        counts = measured_counts(files["angles"])
         if counts is not None:
             return _summary(name, path, "skipped", n_frames=counts[0], n_ok=counts[1], seconds=0.0)
     t0 = time.perf_counter()

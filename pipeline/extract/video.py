@@ -25,6 +25,7 @@ from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.kinematics import KinematicsConfig, flag_kinematics
 from tympani.pipeline.extract.stream import (Check, Epoch, ExtractLog, frame_row, lens_undistorter, measure_frames,
                                              try_measure)
+from tympani.pipeline.force.forcelog import read_csv_columns
 from tympani.vision.errors import InputError, one_line
 from tympani.vision.frames import Frame, FrameSource, open_frames
 from tympani.vision.greyscale import to_gray
@@ -437,4 +438,19 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     for j in np.flatnonzero(marked):
         rows[ok[j]].update(ok=False, reason=why[j], theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
     return int(marked.sum())
+
+
+def measured_counts(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(frames, frames measured) of an angles table, None when it cannot be read.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A ``<trial>.angles.csv`` (its ``ok`` column: true/1/yes/t/y, any case, is measured).
+    """
+    try:
+        ok = read_csv_columns(path, {"ok": "text"}).values["ok"]
+    except Exception:  # noqa: BLE001 - unreadable or without an ok column: the caller redoes or reports it
+        return None
+    return len(ok), int(np.isin(np.char.lower(np.char.strip(ok.astype(str))), ["true", "1", "yes", "t", "y"]).sum())
 

@@ -71,12 +71,11 @@ does not print are in :mod:`pipeline.model.paper`; :class:`FrictionParams`' defa
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from functools import lru_cache
-from typing import Any, Literal, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Literal, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
-import pandas as pd
 
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom, entry_frame
 

@@ -201,7 +201,7 @@ def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAU
     Parameters
     ----------
     gray : ndarray, shape (h, w) or (h, w, 3)
-        The new frame (grey or BGR; any dtype :func:`vision.edges.as_float_gray` accepts).
+        The new frame (grey or BGR; any dtype :func:`tympani.vision.greyscale.as_float_gray` accepts).
     registration : Registration
         The registration to test. The wall points are cached on it on first use.
     phantom : Phantom

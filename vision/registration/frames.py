@@ -38,7 +38,7 @@ def combine_frames(frames: list[np.ndarray] | np.ndarray, how: str = "median") -
     Parameters
     ----------
     frames : list of ndarray, or one ndarray
-        Frames (grey or BGR, any dtype :func:`vision.edges.as_float_gray` accepts), same size.
+        Frames (grey or BGR, any dtype :func:`tympani.vision.greyscale.as_float_gray` accepts), same size.
     how : {"median", "mean", "first"}
         Per-pixel median (default: keeps the static walls, drops what moves, such as the
         array), mean, or only the first frame. Each frame's global gain is normalised first,

@@ -255,7 +255,7 @@ def wall_fit(
     Parameters
     ----------
     gray : ndarray, shape (h, w) or (h, w, 3)
-        Frame (grey or BGR, any dtype :func:`vision.edges.as_float_gray` accepts).
+        Frame (grey or BGR, any dtype :func:`tympani.vision.greyscale.as_float_gray` accepts).
     registration : Registration
         Pose, line half width, edge smoothing and doubled walls to test.
     phantom : Phantom

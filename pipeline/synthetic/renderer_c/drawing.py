@@ -346,7 +346,6 @@ class Renderer:
         t = self.times[i]
         arr_pts, arr_rho = sh["pts"][::5], sh["rho_outline"][::5]
         sig_a = sh["meta"]["sig_a"]
-        apex = sh["pts"][0]
         obstacles = []  # (centre, radius)
 
         def clearance(c, R):
@@ -579,7 +578,7 @@ class Renderer:
     def _array_layer(self, i):
         a, sh = self.app, self.shapes[i]
         H2, W2 = self.H2, self.W2
-        pts, s, tan = sh["pts"], sh["s"], sh["tangent"]
+        pts, tan = sh["pts"], sh["tangent"]
         nl = np.stack([-tan[:, 1], tan[:, 0]], -1)
         rho0 = self.model.rho0
         k0 = int(round(rho0 / self.model.DS))
