@@ -465,7 +465,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
         from_video = not isinstance(angles, str) or not angles
         e, s = ex.get(trial, {}), sy.get(trial, {})
         apath = Path(angles) if not from_video else out / "angles" / f"{trial}.angles.csv"
-        frames, ok = (measured_counts(apath) if apath.is_file() else None) or (float("nan"), float("nan"))
+        frames, ok = map(float, (measured_counts(apath) if apath.is_file() else None) or (float("nan"), float("nan")))
         error = e.get("error") if e.get("status") == "failed" else s.get("error")
         rows.append(dict(
             trial=trial, speed_mm_s=float(r["speed_mm_s"]), source="video" if from_video else "angles",
