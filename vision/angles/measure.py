@@ -28,6 +28,8 @@ def _grey_levels(frame: np.ndarray) -> np.ndarray:
     a = np.asarray(frame)
     if a.size == 0:
         raise ValueError(f"a frame must be 2-D grey or BGR(A) colour, not shape {a.shape}")
+    if a.dtype == np.uint8 and a.ndim == 2:
+        return a  # already grey levels; the measurement only reads it
     return to_gray(a) if a.dtype == np.uint8 else as_float_gray(a)
 
 
