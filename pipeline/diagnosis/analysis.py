@@ -267,12 +267,9 @@ class Diagnosis:
 
     Attributes
     ----------
-    verdict : str
-        ``identified``, ``ambiguous`` or ``no_gap``.
-    effect : str or None
-        The identified effect.
     decision : Decision
-        :func:`pipeline.diagnosis.decision.decide`'s output, with the variants chosen.
+        :func:`pipeline.diagnosis.decision.decide`'s output, with the variants chosen; its
+        ``verdict`` and ``effect`` are the diagnosis's (:attr:`verdict`, :attr:`effect`).
     ranking : tuple of CandidateScore
         One per candidate, best held-out RMSE first.
     fits : dict
@@ -302,8 +299,6 @@ class Diagnosis:
     config : DiagnosisConfig
     """
 
-    verdict: str
-    effect: str | None
     decision: Decision
     ranking: tuple[CandidateScore, ...]
     fits: dict
@@ -319,6 +314,16 @@ class Diagnosis:
     experiments: tuple[Experiment, ...]
     timing_s: float
     config: DiagnosisConfig = field(default_factory=DiagnosisConfig)
+
+    @property
+    def verdict(self) -> str:
+        """``identified``, ``ambiguous`` or ``no_gap``."""
+        return self.decision.verdict
+
+    @property
+    def effect(self) -> str | None:
+        """The identified effect (None unless ``identified``)."""
+        return self.decision.effect
 
 
 # --------------------------------------------------------------------------- the diagnosis
@@ -453,7 +458,7 @@ def diagnose(
         focus = [leader] + [s.candidate for s in ranking if s.candidate in effects and s.candidate != leader][:1]
     experiments = splitting_experiments(ds, fits, focus, fitted) if decision.verdict != "no_gap" else ()
     return Diagnosis(
-        verdict=decision.verdict, effect=decision.effect, decision=decision, ranking=ranking, fits=fits,
+        decision=decision, ranking=ranking, fits=fits,
         folds=folds, heldout=held, fitted=fitted, data=ds, lof=lof, where=where, gap=gap, identifiability=ident,
         peak_drop=drops, experiments=experiments, timing_s=time.perf_counter() - t0, config=config,
     )
