@@ -43,3 +43,17 @@ def test_installed_package_is_tympani_only(tmp_path):
                              cwd=tmp_path, env=env)
     release = re.search(r'^version = "(.+)"', (ROOT / "pyproject.toml").read_text(encoding="utf-8"), re.M)[1]
     assert version.stdout.strip() == f"tympani {release}"
+
+
+def test_the_command_line_starts_without_the_analysis():
+    """``tympani --help`` imports argparse-level code only: the API names of ``tympani`` load on
+    first use, and each command imports its own modules when it runs."""
+    code = ("import sys, tympani.pipeline.cli as cli; cli.build_parser(); "
+            "heavy = [m for m in ('scipy', 'cv2', 'pandas', 'matplotlib', 'tympani.pipeline.diagnosis.analysis', "
+            "'tympani.vision.angles') if m in sys.modules]; print(heavy)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT.parent)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+    code = "import tympani; f = tympani.fit_bounds; print(f.__module__, 'fit_bounds' in dir(tympani))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT.parent)
+    assert done.stdout.split() == ["tympani.pipeline.model.bounds", "True"]

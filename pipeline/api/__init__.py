@@ -13,26 +13,52 @@ diagnosis). The names below are the main entry points, one per step of the data 
     speeds, skipped = tympani.fit_bounds(synced)  # Eq. (8)-(9) force bounds per speed
     diagnosis = tympani.diagnose(synced)        # where the model misses, and why
 
-Everything else is importable from the subpackages.
+Everything else is importable from the subpackages. The names load on first use, so that
+``import tympani.pipeline.cli`` (the command line) does not pay for the whole package.
 """
 
-from tympani.pipeline.diagnosis.analysis import diagnose
-from tympani.pipeline.diagnosis.config import DiagnosisConfig
-from tympani.pipeline.extract.batch import extract_batch
-from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
-from tympani.pipeline.extract.manifest import read_manifest
-from tympani.pipeline.extract.video import extract_video
-from tympani.pipeline.force.sync import SyncConfig, sync_manifest, sync_trial
-from tympani.pipeline.model.bounds import BoundsConfig, fit_bounds
-from tympani.pipeline.model.identify import fit_synced
-from tympani.pipeline.run import RunConfig, run_pipeline
-from tympani.vision.angles import MeasureConfig, measure_frame, prepare_measurement
-from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom
-from tympani.vision.registration import RegistrationConfig, register
+from __future__ import annotations
 
-__all__ = [
-    "DEFAULT_PHANTOM", "BoundsConfig", "DiagnosisConfig", "ExtractConfig", "MeasureConfig", "Phantom", "RegistrationConfig",
-    "RunConfig", "SyncConfig", "VisionSteps", "diagnose", "extract_batch", "extract_video", "fit_bounds", "fit_synced",
-    "measure_frame", "prepare_measurement", "read_manifest", "register", "run_pipeline", "sync_manifest",
-    "sync_trial",
-]
+import importlib
+from typing import Any
+
+#: Each name of the API -> the module that defines it.
+_HOME = {
+    "diagnose": "tympani.pipeline.diagnosis.analysis",
+    "DiagnosisConfig": "tympani.pipeline.diagnosis.config",
+    "extract_batch": "tympani.pipeline.extract.batch",
+    "ExtractConfig": "tympani.pipeline.extract.config",
+    "VisionSteps": "tympani.pipeline.extract.config",
+    "read_manifest": "tympani.pipeline.extract.manifest",
+    "extract_video": "tympani.pipeline.extract.video",
+    "SyncConfig": "tympani.pipeline.force.sync",
+    "sync_manifest": "tympani.pipeline.force.sync",
+    "sync_trial": "tympani.pipeline.force.sync",
+    "BoundsConfig": "tympani.pipeline.model.bounds",
+    "fit_bounds": "tympani.pipeline.model.bounds",
+    "fit_synced": "tympani.pipeline.model.identify",
+    "RunConfig": "tympani.pipeline.run",
+    "run_pipeline": "tympani.pipeline.run",
+    "MeasureConfig": "tympani.vision.angles",
+    "measure_frame": "tympani.vision.angles",
+    "prepare_measurement": "tympani.vision.angles",
+    "DEFAULT_PHANTOM": "tympani.vision.geometry",
+    "Phantom": "tympani.vision.geometry",
+    "RegistrationConfig": "tympani.vision.registration",
+    "register": "tympani.vision.registration",
+}
+
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str) -> Any:
+    """The API name ``name``, imported from its module on first use."""
+    if name not in _HOME:
+        raise AttributeError(f"module 'tympani' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_HOME[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOME))
