@@ -8,7 +8,7 @@ that is removed when the failure is seen by Python (:func:`remove_stale_temps` c
 by a killed process).
 
 A write that the operating system refuses (read-only folder, permission denied, disk full, ...)
-raises :class:`OutputError`, an :class:`~vision.errors.InputError` that names the file the
+raises :class:`OutputError`, an :class:`~tympani.vision.errors.InputError` that names the file the
 command could not write: the command line reports it in one line with exit status 2.
 
 The project's CSV inputs (manifests, force logs, synced tables) may carry ``#`` comment lines:
@@ -67,7 +67,7 @@ HASH_CHUNK_BYTES = 1 << 20
 class OutputError(InputError, OSError):
     """An output file or folder that cannot be written (exit status 2, like bad input).
 
-    It is both an :class:`~vision.errors.InputError` (one line naming the file) and an
+    It is both an :class:`~tympani.vision.errors.InputError` (one line naming the file) and an
     ``OSError`` (so code that catches ``OSError`` around writes still does).
 
     Parameters

@@ -13,7 +13,7 @@ in the output folder (columns and keys: ``docs/file-formats.md``)::
     run.json                     stages (status, seconds, message), errors, provenance
     report.html                  the self-contained report (pipeline.report.page)
 
-Resuming: extraction skips videos whose outputs exist (:func:`pipeline.extract.batch.extract_batch`);
+Resuming: extraction skips videos whose outputs exist (:func:`tympani.pipeline.extract.batch.extract_batch`);
 every later stage is skipped when its outputs are newer than its inputs and it last ran with the
 same settings (recorded in ``run.json``). ``overwrite=True`` redoes everything.
 
@@ -98,7 +98,7 @@ class RunConfig:
     fps : float or None
         Frame rate (frames/s) for videos whose manifest row gives none (folders of frames).
     log_format : str or None
-        Log format file (:mod:`pipeline.force.logformat`) for the manifest rows whose ``format`` cell is blank.
+        Log format file (:mod:`tympani.pipeline.force.logformat`) for the manifest rows whose ``format`` cell is blank.
     """
 
     workers: int = 1
@@ -439,7 +439,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
     Parameters
     ----------
     manifest : DataFrame
-        From :func:`pipeline.extract.manifest.read_manifest`.
+        From :func:`tympani.pipeline.extract.manifest.read_manifest`.
     out : Path
         Output folder (``angles/`` inside).
     extract : DataFrame
@@ -487,7 +487,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
     Parameters
     ----------
     manifest : str or PathLike
-        Manifest CSV (:func:`pipeline.extract.manifest.read_manifest`).
+        Manifest CSV (:func:`tympani.pipeline.extract.manifest.read_manifest`).
     out_dir : str or PathLike
         Output folder (created).
     cfg : RunConfig
@@ -496,7 +496,7 @@ def run_pipeline(manifest: str | os.PathLike, out_dir: str | os.PathLike, cfg: R
         The command line, recorded in ``run.json`` and the report.
     executor : object, optional
         Runs the extraction instead of ``cfg.workers`` local processes (e.g. a
-        ``dask.distributed.Client``; see :func:`pipeline.extract.batch.extract_batch`).
+        ``dask.distributed.Client``; see :func:`tympani.pipeline.extract.batch.extract_batch`).
 
     Returns
     -------

@@ -300,7 +300,7 @@ def test_representative_triples(theta_bot: float, theta_con: float, theta_tip: f
 @pytest.mark.parametrize("frame", range(6))
 def test_table_iii_triples_are_measured_back(frame: int) -> None:
     """The six (theta_bot, theta_con, theta_tip) of the paper's TABLE III (its Fig. 8), rendered so
-    that their true angles are exactly the table's (:func:`vision.rendering.array_at_angles`), each at
+    that their true angles are exactly the table's (:func:`tympani.vision.rendering.array_at_angles`), each at
     three random poses and looks (nuisance 0, 0.4, 0.8), registered from the frame itself and
     measured: every |error| of theta_tip <= 0.02 rad and of theta_bot <= 0.08 rad against the
     table. All six fit the planar phantom; the last two (theta_tip 4.38 and 4.47 rad) need 16.1

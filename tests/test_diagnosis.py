@@ -1,7 +1,7 @@
 """The sim-to-real gap diagnosis (issue 4): verdicts on generated data with hidden effects, the
 paper's case, kernels against the library's forms, bad input, the CLI and a small blind evaluation.
 
-Data come from :mod:`pipeline.synthetic.family_a` (hidden forms unlike the library's); seeds are fixed and
+Data come from :mod:`tympani.pipeline.synthetic.family_a` (hidden forms unlike the library's); seeds are fixed and
 differ from the development seeds used to calibrate the decision thresholds (101, 102).
 """
 

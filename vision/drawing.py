@@ -4,8 +4,8 @@ Everything is drawn in image pixels on a BGR copy of the frame: the registered c
 and entry (green), the spiral centre (magenta cross), the array's outline (yellow) and
 centreline (cyan), the contact arc on the outer wall from ``theta_bot`` to ``theta_tip`` (red,
 thick), the tip (red dot) and the contact start (orange dot), manual labels (white rings), and
-the three angles as text. Geometry comes from :mod:`vision.geometry` mapped with the
-registration's :class:`~vision.geometry.CameraPose`, so what is drawn is exactly what was
+the three angles as text. Geometry comes from :mod:`tympani.vision.geometry` mapped with the
+registration's :class:`~tympani.vision.geometry.CameraPose`, so what is drawn is exactly what was
 measured against.
 """
 

@@ -117,7 +117,7 @@ def is_float_gray(image: np.ndarray) -> bool:
 
     True for a C-contiguous 2-D float32 image without NaNs whose grey levels lie in
     ``[0, 255]`` with a maximum above 1 (a maximum of at most 1 means the 0–1 scale), such
-    as :func:`vision.registration.combine_frames` returns. Two reductions, no copy.
+    as :func:`tympani.vision.registration.combine_frames` returns. Two reductions, no copy.
 
     Parameters
     ----------

@@ -620,7 +620,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None, *, steps: Any = None) -> int:
     """Run ``tympani`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status.
 
-    ``steps`` (a :class:`~pipeline.extract.config.VisionSteps`) are the vision functions that
+    ``steps`` (a :class:`~tympani.pipeline.extract.config.VisionSteps`) are the vision functions that
     ``extract``, ``annotate`` and ``bench`` call; None: the real ones. The commands find them
     as ``args.steps``.
     """

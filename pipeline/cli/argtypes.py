@@ -1,7 +1,7 @@
 """Argument types shared by the ``tympani`` subcommands.
 
 Each is an ``argparse`` ``type=`` callable: it turns the text of one option into a value or raises
-``argparse.ArgumentTypeError`` with a one-line reason, which :mod:`pipeline.cli` reports as a usage
+``argparse.ArgumentTypeError`` with a one-line reason, which :mod:`tympani.pipeline.cli` reports as a usage
 error (exit status 2).
 """
 

@@ -1,5 +1,5 @@
 """The ``tympani diagnose`` and ``tympani evaluate-diagnosis`` commands (registered in
-:mod:`pipeline.cli`).
+:mod:`tympani.pipeline.cli`).
 
 Importing this module is cheap (argparse only); the diagnosis loads when a command runs.
 """

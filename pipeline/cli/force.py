@@ -1,4 +1,4 @@
-"""The ``tympani simulate``, ``tympani paper`` and ``tympani fit`` commands (registered in :mod:`pipeline.cli`).
+"""The ``tympani simulate``, ``tympani paper`` and ``tympani fit`` commands (registered in :mod:`tympani.pipeline.cli`).
 
 Kept apart from ``pipeline/cli/__init__.py`` so that file only lists them. Importing this module is cheap
 (argparse only); the model and the fit are imported when a command runs.

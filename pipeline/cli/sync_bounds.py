@@ -1,4 +1,4 @@
-"""The ``tympani sync`` and ``tympani bounds`` commands (registered in :mod:`pipeline.cli`).
+"""The ``tympani sync`` and ``tympani bounds`` commands (registered in :mod:`tympani.pipeline.cli`).
 
 Importing this module is cheap (argparse only); the work is imported when a command runs.
 Results go to files, a short summary to stdout, one line per failed trial to stderr (warnings go

@@ -5,7 +5,7 @@
 1. **decode vs extraction** on one video (a rendered 640×480 mp4 with a camera's sensor noise
    by default, see :func:`render_bench_video` and :attr:`BenchConfig.noise_sigma`): frames/s of
    decoding alone (read + grey conversion) and of the full extraction
-   (:func:`pipeline.extract.video.extract_video`: registration, checks, measurement), and their ratio.
+   (:func:`tympani.pipeline.extract.video.extract_video`: registration, checks, measurement), and their ratio.
    Both are timed ``repeats`` times (5), alternately, and the fastest of each is compared. Each
    round's own ratio (its extraction against the decoding just before it) is listed too, with
    the median of the warm rounds: adjacent timings share the machine's load, so that median
@@ -18,16 +18,16 @@
 2. **per-stage time** (ms/frame) of the warm extraction: decode (+ grey), registration (the
    one-off registration, its measurement plan and the periodic checks) and the measurement's
    stages (survey, edges, centre line, angles);
-3. **peak memory** (resident set, MiB) of :func:`pipeline.extract.batch.process_video` on the video and
+3. **peak memory** (resident set, MiB) of :func:`tympani.pipeline.extract.batch.process_video` on the video and
    on a ``long_factor`` times longer one (the same frames looped), each in a fresh Python process
-   (a peak is per process; see :func:`pipeline.devtools.memory.peak_rss_mib`), so that streaming shows as two nearly
+   (a peak is per process; see :func:`tympani.pipeline.devtools.memory.peak_rss_mib`), so that streaming shows as two nearly
    equal figures;
-4. **diagnosis time** of :func:`pipeline.diagnosis.analysis.diagnose` on a synthetic 5-speed ×
-   ``trials`` dataset (:func:`pipeline.synthetic.family_a.synthetic_dataset`, no video);
-5. **batch throughput** of :func:`pipeline.extract.batch.extract_batch` on ``batch_videos`` copies of
+4. **diagnosis time** of :func:`tympani.pipeline.diagnosis.analysis.diagnose` on a synthetic 5-speed ×
+   ``trials`` dataset (:func:`tympani.pipeline.synthetic.family_a.synthetic_dataset`, no video);
+5. **batch throughput** of :func:`tympani.pipeline.extract.batch.extract_batch` on ``batch_videos`` copies of
    the video with 1, 2 and 4 worker processes;
 6. **log reading**: seconds and peak memory of reading a ``log_rows``-row ROS force CSV through
-   a log format, in a fresh process (:mod:`pipeline.devtools.logbench`).
+   a log format, in a fresh process (:mod:`tympani.pipeline.devtools.logbench`).
 
 A section that fails is reported with its reason; the others still run. It is a command, not a
 test: the numbers depend on the machine and its load (the ratio is the most robust figure).
@@ -143,7 +143,7 @@ class BenchConfig:
 
 def render_bench_video(out_path: str | os.PathLike, *, n_frames: int = 200, seed: int = 0,
                        size: tuple[int, int] = (640, 480), noise_sigma: float = 2.0) -> Path:
-    """Render the benchmark video (an mp4, 640×480 by default) with :func:`vision.rendering.render_video`.
+    """Render the benchmark video (an mp4, 640×480 by default) with :func:`tympani.vision.rendering.render_video`.
 
     Parameters
     ----------
@@ -268,7 +268,7 @@ def _extract_s(path: Path, cfg: Any, fps: float | None, steps: Any) -> tuple[Any
     return table, time.perf_counter() - t0
 
 
-#: Stage groups of the report: name -> timing keys of :class:`pipeline.extract.stream.ExtractLog`.
+#: Stage groups of the report: name -> timing keys of :class:`tympani.pipeline.extract.stream.ExtractLog`.
 STAGE_GROUPS: dict[str, tuple[str, ...]] = {
     "decode": ("decode", "gray"),
     "registration": ("register", "prepare", "check"),
@@ -345,7 +345,7 @@ def _child_rss(argv: list[str]) -> None:
     (``CFG_PICKLE``: the pickled ``(ExtractConfig, VisionSteps)``).
 
     Prints one JSON line: ``import_rss_mib`` (peak after the imports), ``peak_rss_mib`` (after
-    :func:`pipeline.extract.batch.process_video`), ``n_frames`` and ``seconds``.
+    :func:`tympani.pipeline.extract.batch.process_video`), ``n_frames`` and ``seconds``.
     """
     import cv2
 
@@ -416,7 +416,7 @@ def _diagnosis(config: BenchConfig) -> dict:
 
 
 def _workers(path: Path, cfg: Any, steps: Any, fps: float | None, config: BenchConfig, tmp: Path) -> list[dict]:
-    """Section 5: :func:`pipeline.extract.batch.extract_batch` on copies of the video per worker count."""
+    """Section 5: :func:`tympani.pipeline.extract.batch.extract_batch` on copies of the video per worker count."""
     from tympani.pipeline.extract.batch import extract_batch
     from tympani.pipeline.extract.manifest import VideoItem
 
@@ -489,7 +489,7 @@ def run_bench(
         ``diagnosis`` (``rows``, ``generate_s``, ``diagnose_s``, ``verdict``, ...), ``workers``
         (one dict per count: ``workers``, ``videos``, ``ok``, ``frames``, ``seconds``,
         ``videos_per_s``, ``frames_per_s``, ``error``), ``logs`` (see
-        :func:`pipeline.devtools.logbench.bench_log_read`) for the sections run; ``errors``
+        :func:`tympani.pipeline.devtools.logbench.bench_log_read`) for the sections run; ``errors``
         (section -> one-line reason) and ``total_s``.
     """
     import cv2

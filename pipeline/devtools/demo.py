@@ -4,11 +4,11 @@ The demo is the quickest way to see the whole tool work without a lab, and it te
 paper's story: its insertion force falls with speed as the paper's experiments did (−24 % at
 3 mm/s and −43 % at 7.5 mm/s against 0.5 mm/s), while the paper's friction model falls by under
 2 %. The drop comes from an effect hidden in the force logs, a lubricant film that lifts the array
-off the wall as speed rises (the paper's own hypothesis; :data:`pipeline.synthetic.family_a.PAPER_LIFT`),
+off the wall as speed rises (the paper's own hypothesis; :data:`tympani.pipeline.synthetic.family_a.PAPER_LIFT`),
 which the diagnosis is not told about.
 
 :func:`run_demo` renders a few insertion videos with force logs and exact truth
-(:func:`demo_experiment`), runs ``tympani run`` on them (:func:`pipeline.run.run_pipeline`:
+(:func:`demo_experiment`), runs ``tympani run`` on them (:func:`tympani.pipeline.run.run_pipeline`:
 extract, sync, fit, bounds, diagnose, report.html), checks the extracted angles against the truth
 (:func:`angle_errors`) and measures the force drop with speed (:func:`force_drops`).
 
@@ -41,7 +41,7 @@ DEMO_DWELL_S = 2.0
 
 
 def demo_experiment():
-    """The demo's :class:`pipeline.synthetic.experiment.ExperimentConfig`: the paper's speed drop, hidden."""
+    """The demo's :class:`tympani.pipeline.synthetic.experiment.ExperimentConfig`: the paper's speed drop, hidden."""
     from tympani.pipeline.synthetic.experiment import ExperimentConfig
     from tympani.pipeline.synthetic.family_a import PAPER_LIFT
 
@@ -132,7 +132,7 @@ def run_demo(out_dir: str | Path, *, seed: int = 0, workers: int = 2, quiet: boo
     -------
     dict
         ``out`` (str), ``report`` (path of report.html or None), ``run``
-        (:class:`pipeline.run.RunResult`), ``errors`` (:func:`angle_errors`, rad), ``drops``
+        (:class:`tympani.pipeline.run.RunResult`), ``errors`` (:func:`angle_errors`, rad), ``drops``
         (:func:`force_drops`, or None without a synced table).
     """
     import sys

@@ -1,7 +1,7 @@
 """Peak resident memory of this process, for the memory figures of ``tympani bench``.
 
-:func:`peak_rss_mib` is read by :mod:`pipeline.devtools.bench` (the extraction's peak, in a fresh process)
-and by :mod:`pipeline.devtools.logbench` (a big log's reading, in a fresh process).
+:func:`peak_rss_mib` is read by :mod:`tympani.pipeline.devtools.bench` (the extraction's peak, in a fresh process)
+and by :mod:`tympani.pipeline.devtools.logbench` (a big log's reading, in a fresh process).
 """
 
 from __future__ import annotations

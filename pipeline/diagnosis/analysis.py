@@ -1,11 +1,11 @@
 """Sim-to-real gap diagnosis (docs/diagnosis.md; ``diagnosis.json`` in docs/file-formats.md).
 
-``tympani diagnose SYNCED --out DIR`` calls :func:`pipeline.force.sync.read_synced`,
-:func:`diagnose` and :func:`pipeline.diagnosis.report.write_diagnosis`. The steps are modules of
-:mod:`pipeline.diagnosis`: :mod:`~pipeline.diagnosis.prepare` (the data),
-:mod:`~pipeline.diagnosis.kernels` and :mod:`~pipeline.diagnosis.candidates` (the models and their
-fits), :mod:`~pipeline.diagnosis.evidence` (lack of fit, where, bootstrap) and
-:mod:`~pipeline.diagnosis.decision` (the verdict); this module runs them and writes the result.
+``tympani diagnose SYNCED --out DIR`` calls :func:`tympani.pipeline.force.sync.read_synced`,
+:func:`diagnose` and :func:`tympani.pipeline.diagnosis.report.write_diagnosis`. The steps are modules of
+:mod:`tympani.pipeline.diagnosis`: :mod:`~tympani.pipeline.diagnosis.prepare` (the data),
+:mod:`~tympani.pipeline.diagnosis.kernels` and :mod:`~tympani.pipeline.diagnosis.candidates` (the models and their
+fits), :mod:`~tympani.pipeline.diagnosis.evidence` (lack of fit, where, bootstrap) and
+:mod:`~tympani.pipeline.diagnosis.decision` (the verdict); this module runs them and writes the result.
 
 Questions and how they are answered
 -----------------------------------
@@ -26,8 +26,8 @@ summary in words names the speeds, theta_con range and phases of the significant
 *Which?*  Every candidate is fitted on all speeds but one and predicts the one held out
 (leave-one-speed-out; the fold holding out the fastest speed is the extrapolation test).
 Held-out mean squared errors are compared with a bootstrap over trials stratified by speed
-(:func:`pipeline.diagnosis.decision.decide`). AICc and BIC of the fits to all speeds are secondary. Each effect's parameters
-get standard errors (cluster sandwich over trials, :func:`pipeline.model.stats.least_squares_covariances`,
+(:func:`tympani.pipeline.diagnosis.decision.decide`). AICc and BIC of the fits to all speeds are secondary. Each effect's parameters
+get standard errors (cluster sandwich over trials, :func:`tympani.pipeline.model.stats.least_squares_covariances`,
 conditional on the trial gains), their largest correlation and their spread over the folds.
 
 *How much?*  Held-out RMSE of base and base + the leading effect, pooled and per speed, with
@@ -179,7 +179,7 @@ class GapSize:
     rmse_control_g : float
         Held-out RMSE (g) of the control.
     systematic_base_g, systematic_with_effect_g : float
-        Systematic misfit (g; :func:`pipeline.diagnosis.evidence.systematic_gap`) of the gain-1 held-out
+        Systematic misfit (g; :func:`tympani.pipeline.diagnosis.evidence.systematic_gap`) of the gain-1 held-out
         residuals.
     systematic_shrink_pct : float
         ``100 (1 - systematic_with_effect / systematic_base)``.
@@ -268,7 +268,7 @@ class Diagnosis:
     Attributes
     ----------
     decision : Decision
-        :func:`pipeline.diagnosis.decision.decide`'s output, with the variants chosen; its
+        :func:`tympani.pipeline.diagnosis.decision.decide`'s output, with the variants chosen; its
         ``verdict`` and ``effect`` are the diagnosis's (:attr:`verdict`, :attr:`effect`).
     ranking : tuple of CandidateScore
         One per candidate, best held-out RMSE first.
@@ -285,11 +285,11 @@ class Diagnosis:
         Lack of fit of the held-out predictions of ``base`` (the verdict's gate) and ``control``,
         and of their fits to all speeds.
     where : GapLocation
-        :func:`pipeline.diagnosis.evidence.where_is_the_gap` of the base's held-out residuals.
+        :func:`tympani.pipeline.diagnosis.evidence.where_is_the_gap` of the base's held-out residuals.
     gap : GapSize
         RMSEs before and after, per speed, systematic gap, bootstrap intervals.
     identifiability : dict
-        Effect -> parameter -> :class:`pipeline.diagnosis.identifiability.ParameterIdentifiability`.
+        Effect -> parameter -> :class:`tympani.pipeline.diagnosis.identifiability.ParameterIdentifiability`.
     peak_drop : PeakDropSummary
         Measured and modelled peak-force drops and the share explained.
     experiments : tuple of Experiment

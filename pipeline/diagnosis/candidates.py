@@ -3,16 +3,16 @@
 Candidates
 ----------
 - ``base``: the paper's friction model with the *nominal* friction law
-  (:attr:`pipeline.diagnosis.config.DiagnosisConfig.friction`, by default the paper's mu_s = 0.18, mu_k = 0.12 with the v_s and delta_s fitted to TABLE II: the
+  (:attr:`tympani.pipeline.diagnosis.config.DiagnosisConfig.friction`, by default the paper's mu_s = 0.18, mu_k = 0.12 with the v_s and delta_s fitted to TABLE II: the
   simulation's) and the four pressure coefficients identified (Eq. 6, each linear in theta_con).
 - ``control``: the same with the Stribeck law re-identified (``mu_s``, ``mu_k``, ``v_s``). An
   effect must beat it, so that no effect is credited with what a better-fitted Stribeck curve
   already explains. The viscous term of the friction law (a coefficient growing in proportion to
   speed: shear of the lubricant film in the contact) is not part of it: that is viscous drag in
   the contact, and the ``viscous_drag`` candidate carries it.
-- one per effect of :data:`pipeline.model.effects.EFFECTS`: ``base`` + the effect's term, with the
+- one per effect of :data:`tympani.pipeline.model.effects.EFFECTS`: ``base`` + the effect's term, with the
   friction law held nominal. Holding it matters: friction is a small share of the force on these
-  arcs (:mod:`pipeline.model.friction`), so a free Stribeck curve is identified mainly by whatever else
+  arcs (:mod:`tympani.pipeline.model.friction`), so a free Stribeck curve is identified mainly by whatever else
   depends on speed, and combined with an effect (e.g. capstan's ``exp(k mu(v) theta_con)``) it
   turns into a flexible speed × angle interaction that mimics other effects and extrapolates
   badly to held-out speeds.
@@ -32,7 +32,7 @@ values at ``theta_con = 0`` and at the largest theta_con of the data, both >= 0 
 the linear law agree on the data), and found by non-negative least squares (alternating with the
 trial gains) inside every evaluation of the non-linear parameters (the control's friction
 constants, an effect's non-linear parameters), which :func:`scipy.optimize.least_squares` fits.
-Additive effects (drag, drift, profile) are further linear columns (:mod:`pipeline.diagnosis.kernels`),
+Additive effects (drag, drift, profile) are further linear columns (:mod:`tympani.pipeline.diagnosis.kernels`),
 so base, drag, drift and profile need no non-linear search at all.
 """
 
@@ -125,7 +125,7 @@ def candidates(effects: Sequence[str] = tuple(EFFECTS)) -> list[Candidate]:
     Parameters
     ----------
     effects : sequence of str
-        Effect names of :data:`pipeline.model.effects.EFFECTS`.
+        Effect names of :data:`tympani.pipeline.model.effects.EFFECTS`.
     """
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
@@ -318,7 +318,7 @@ class CandidateFit:
     def params(self, theta_hi: float) -> dict[str, float]:
         """Named parameter values: the friction law (``mu_s``, ``mu_k``, ``v_s_mm_s`` mm/s,
         ``delta_s``, ``mu_v_s_per_mm`` s/mm), pressures for ``contact_width_mm`` = 0.03453 mm (MPa,
-        MPa/rad) and the effect's parameters in :data:`pipeline.model.effects.EFFECTS` units."""
+        MPa/rad) and the effect's parameters in :data:`tympani.pipeline.model.effects.EFFECTS` units."""
         law = self.friction
         out = dict(mu_s=law.mu_s, mu_k=law.mu_k, v_s_mm_s=law.v_s_mm_s, delta_s=law.delta_s,
                    mu_v_s_per_mm=law.mu_v_s_per_mm)

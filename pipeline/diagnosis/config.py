@@ -16,14 +16,14 @@ DATA_NEEDED = ("the diagnosis needs at least 3 insertion speeds with at least 2 
 #: Insertion phases of the "where" analysis.
 PHASES = ("before", "early", "middle", "late", "dwell")
 
-#: Contact width (mm) of the pressure integrals, held as in :mod:`pipeline.model.identify` (only the
+#: Contact width (mm) of the pressure integrals, held as in :mod:`tympani.pipeline.model.identify` (only the
 #: product of width and pressure enters the force).
 CONTACT_WIDTH_MM = FrictionParams().contact_width_mm
 
 
 @dataclass(frozen=True)
 class DiagnosisConfig:
-    """How :func:`pipeline.diagnosis.analysis.diagnose` works. The decision thresholds were
+    """How :func:`tympani.pipeline.diagnosis.analysis.diagnose` works. The decision thresholds were
     calibrated on development data (not on evaluation seeds) and are frozen.
 
     Parameters
@@ -37,13 +37,13 @@ class DiagnosisConfig:
         largest error left in a correct model's prediction (about 0.04 g of 0.045 g on effect-free
         synthetic data with 0.01 rad angle noise; 0.025 g after smoothing over 0.6 s).
     effects : tuple of str
-        Candidate effects (names of :data:`pipeline.model.effects.EFFECTS`).
+        Candidate effects (names of :data:`tympani.pipeline.model.effects.EFFECTS`).
     friction : FrictionParams
         Nominal friction law of ``base`` and the effect candidates (``mu_s``, ``mu_k``
         dimensionless, ``v_s_mm_s`` mm/s, ``delta_s``, ``mu_v_s_per_mm`` s/mm); its pressures
         are ignored (always identified).
     friction_mode : {"axial", "vector"}
-        Friction projection of the model (:mod:`pipeline.model.friction`).
+        Friction projection of the model (:mod:`tympani.pipeline.model.friction`).
     trial_gain : bool
         Fit a per-trial gain on the contact force (mean per speed within its random range of 1).
     gain_bounds : tuple of float
@@ -76,7 +76,7 @@ class DiagnosisConfig:
     mismatch_factor : float
         Another effect that explains a gap stays tied with the leader unless its systematic misfit
         (the repeatable part of its held-out residual,
-        :func:`pipeline.diagnosis.evidence.systematic_gap`, squared) exceeds the leader's by more
+        :func:`tympani.pipeline.diagnosis.evidence.systematic_gap`, squared) exceeds the leader's by more
         than ``mismatch_factor`` times the leader's own (dimensionless): when the leader itself
         leaves a systematic misfit its form is not the data's, and a rival whose misfit is not
         clearly larger may be the right effect in another form.

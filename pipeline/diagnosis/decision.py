@@ -25,7 +25,7 @@ class VariantChoice:
     Attributes
     ----------
     variant : str
-        The variant's name (:data:`pipeline.diagnosis.kernels.VARIANTS`).
+        The variant's name (:data:`tympani.pipeline.diagnosis.kernels.VARIANTS`).
     used : bool
         Whether it predicts the held-out speeds significantly better than the plain kernel.
     heldout_rmse_plain_g, heldout_rmse_variant_g : float
@@ -69,7 +69,7 @@ class Decision:
         The verdict in words.
     variants : dict
         Effect -> :class:`VariantChoice` of its richer kernel (filled in by
-        :func:`pipeline.diagnosis.analysis.diagnose`).
+        :func:`tympani.pipeline.diagnosis.analysis.diagnose`).
     """
 
     verdict: str
@@ -93,7 +93,7 @@ def decide(mse: Mapping[str, float], draws: Mapping[str, np.ndarray], effects: S
 
     The *reference* is the better (smaller held-out MSE) of ``base`` and ``control``: an effect
     must beat the paper's model both with its nominal and with its re-identified friction law.
-    Rule (thresholds of :class:`pipeline.diagnosis.config.DiagnosisConfig`, frozen):
+    Rule (thresholds of :class:`tympani.pipeline.diagnosis.config.DiagnosisConfig`, frozen):
 
     1. An effect *explains a gap* when, at one-sided level ``alpha`` of the bootstrap over trials,
        it removes more than ``min_gain`` of the held-out MSE of base and of control:

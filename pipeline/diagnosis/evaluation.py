@@ -1,8 +1,8 @@
 """Blind evaluation of the gap diagnosis on generated data (``tympani evaluate-diagnosis``).
 
 Each case draws a hidden effect (or none), its strength and a noise level, generates an
-experiment with :func:`pipeline.synthetic.family_a.synthetic_dataset` (hidden forms unlike the library's,
-see that module), runs :func:`pipeline.diagnosis.analysis.diagnose` on the synced table alone and scores
+experiment with :func:`tympani.pipeline.synthetic.family_a.synthetic_dataset` (hidden forms unlike the library's,
+see that module), runs :func:`tympani.pipeline.diagnosis.analysis.diagnose` on the synced table alone and scores
 the verdict against the truth. Cases are balanced over the effects (case ``i`` gets effect
 ``i mod (1 + number of effects)``, ``None`` first); everything else is drawn from
 ``numpy.random.SeedSequence(seed)`` spawned per case, so a case is reproducible on its own and the
@@ -63,7 +63,7 @@ class EvalConfig:
     strength_range : tuple of float
         Range of the effect strength (dimensionless, 1 = typical), drawn log-uniformly.
     noise_levels : mapping of str to float
-        Named factors on :class:`pipeline.synthetic.family_a.NoiseConfig`'s white, AR and tare noise.
+        Named factors on :class:`tympani.pipeline.synthetic.family_a.NoiseConfig`'s white, AR and tare noise.
     speeds_mm_s : tuple of float
         Insertion speeds (mm/s).
     trials : int
@@ -74,8 +74,8 @@ class EvalConfig:
         Keep each case's per-trial held-out errors (columns starting with ``_``; for studying decision
         rules, not written to files).
     family : str
-        Generator family of the data (:data:`FAMILIES`): ``"A"`` (:mod:`pipeline.synthetic.family_a`) or ``"B"``
-        (:mod:`pipeline.synthetic.family_b`, written independently from a physics brief).
+        Generator family of the data (:data:`FAMILIES`): ``"A"`` (:mod:`tympani.pipeline.synthetic.family_a`) or ``"B"``
+        (:mod:`tympani.pipeline.synthetic.family_b`, written independently from a physics brief).
     """
 
     effects: tuple[str | None, ...] = (None, "hydrodynamic_lift", "viscous_drag", "capstan", "sensor_lag",
@@ -243,7 +243,7 @@ class GeneratedCase:
 
 
 def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
-    """A case of :mod:`pipeline.synthetic.family_a` (noise level: a factor on its white, AR(1) and tare noise)."""
+    """A case of :mod:`tympani.pipeline.synthetic.family_a` (noise level: a factor on its white, AR(1) and tare noise)."""
     factor = config.noise_levels[spec.noise_level]
     base_noise = NoiseConfig()
     noise = replace(base_noise, white_g=base_noise.white_g * factor, ar_g=base_noise.ar_g * factor,
@@ -257,7 +257,7 @@ def family_a(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
 
 
 def family_b(spec: "CaseSpec", config: "EvalConfig") -> GeneratedCase:
-    """A case of :mod:`pipeline.synthetic.family_b` (noise level: its ``noise_scale``)."""
+    """A case of :mod:`tympani.pipeline.synthetic.family_b` (noise level: its ``noise_scale``)."""
     seed = int(np.random.SeedSequence(list(spec.entropy)).generate_state(1)[0])
     table, truth = generate(spec.effect, seed, strength=spec.strength if spec.effect else 1.0,
                             speeds_mm_s=config.speeds_mm_s, trials=config.trials,

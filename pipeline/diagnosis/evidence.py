@@ -159,7 +159,7 @@ class ThetaCell(GapCell):
 @dataclass(frozen=True)
 class PhaseCell(GapCell):
     """A speed × insertion-phase cell (:class:`GapCell`); ``phase`` is one of
-    :data:`pipeline.diagnosis.config.PHASES`."""
+    :data:`tympani.pipeline.diagnosis.config.PHASES`."""
 
     phase: str
 
@@ -177,7 +177,7 @@ class GapLocation:
     theta_con_range_rad : tuple of float or None
         theta_con range (rad) of the significant contact cells.
     phases : tuple of str
-        Phases of the significant cells, in :data:`pipeline.diagnosis.config.PHASES` order.
+        Phases of the significant cells, in :data:`tympani.pipeline.diagnosis.config.PHASES` order.
     sign : str or None
         ``above``, ``below`` or ``mixed``: the measured force against the model in the significant
         cells (None without any).

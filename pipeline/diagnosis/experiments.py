@@ -4,11 +4,11 @@ For each candidate experiment — a **dwell** after the stop, a **retraction** r
 insertion, a second lubricant **viscosity**, a **baseline** log before the robot moves — every
 fitted effect predicts a signed change of the sensed force (g) relative to what the base model
 predicts, at the fastest speed of the data, computed from that effect's fitted parameters
-(:mod:`pipeline.diagnosis.candidates`). The experiment recommended for a set of tied effects is the one whose
+(:mod:`tympani.pipeline.diagnosis.candidates`). The experiment recommended for a set of tied effects is the one whose
 predictions differ most between every pair of them (largest smallest pairwise difference).
 
 The predictions are first-order consequences of the library's functional forms
-(:mod:`pipeline.model.effects`), stated with their assumptions:
+(:mod:`tympani.pipeline.model.effects`), stated with their assumptions:
 
 - ``sensor_lag``: a first-order sensor with time constant tau. At the stop the sensed force is short
   of the true force by the deficit D (≈ tau |dF/dt|); during a dwell it recovers D, 63 % within tau.
@@ -125,7 +125,7 @@ def effect_predictions(ds, fit, model_g: np.ndarray) -> dict:
         A fit of base + one effect to all speeds.
     model_g : ndarray, shape (n,)
         The fit's model force (g) on every row of ``ds``, with its trial gains
-        (:func:`pipeline.diagnosis.candidates.predict`).
+        (:func:`tympani.pipeline.diagnosis.candidates.predict`).
 
     Returns
     -------
@@ -228,7 +228,7 @@ def splitting_experiments(ds, fits: Mapping, focus: Sequence[str],
         Effects to split (the tied ones, or the leader and its runner-up).
     model_g : mapping
         Candidate name -> its fit's model force (g) per row, with the trial gains
-        (:func:`pipeline.diagnosis.candidates.predict`).
+        (:func:`tympani.pipeline.diagnosis.candidates.predict`).
 
     Returns
     -------

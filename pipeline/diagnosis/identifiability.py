@@ -1,5 +1,5 @@
 """How well the diagnosis determines each effect's parameters: standard errors (cluster sandwich
-over trials, :func:`pipeline.model.stats.least_squares_covariances`, conditional on the trial
+over trials, :func:`tympani.pipeline.model.stats.least_squares_covariances`, conditional on the trial
 gains), their largest correlation and their spread over the leave-one-speed-out folds."""
 
 from __future__ import annotations

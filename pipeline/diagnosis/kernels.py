@@ -1,6 +1,6 @@
 """How each unmodelled effect enters the diagnosis' design matrix (its :class:`Kernel`).
 
-The effects' functional forms are the library's (:mod:`pipeline.model.effects`), re-implemented on
+The effects' functional forms are the library's (:mod:`tympani.pipeline.model.effects`), re-implemented on
 the design matrix (equality with ``Effect.apply`` is tested), with two deliberate differences: the
 sensor lag is the exact first-order response to a piecewise-linear input (first-order hold; the
 library's zero-order hold adds half a sample of delay on subsampled rows), and drag uses the
@@ -266,7 +266,7 @@ def _drift_thermal_columns(ds, mu, nl):
 
 #: Richer variants of effects: (effect, variant) -> kernel. A variant is used only when it predicts
 #: held-out speeds significantly better than the effect's plain kernel
-#: (:func:`pipeline.diagnosis.analysis.diagnose`): its extra parameters must be ones the data can separate.
+#: (:func:`tympani.pipeline.diagnosis.analysis.diagnose`): its extra parameters must be ones the data can separate.
 VARIANTS: dict[tuple[str, str], Kernel] = {
     ("hydrodynamic_lift", "film"): Kernel(
         params=("lift_share", "lift_exponent", "film_build_mm", "film_squeeze_s"),

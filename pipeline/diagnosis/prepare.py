@@ -7,8 +7,8 @@ Rows where the robot stands (before the start and in a dwell after the stop, fou
 on; lift keeps the trial's run speed (its film takes seconds to squeeze out). These rows carry
 the clearest signatures of lag and drift.
 
-Geometry integrals are computed once per dataset (:func:`pipeline.model.friction.arc_integrals`)
-and trials are subsampled to :attr:`pipeline.diagnosis.config.DiagnosisConfig.rows_per_trial` rows
+Geometry integrals are computed once per dataset (:func:`tympani.pipeline.model.friction.arc_integrals`)
+and trials are subsampled to :attr:`tympani.pipeline.diagnosis.config.DiagnosisConfig.rows_per_trial` rows
 evenly in time.
 """
 
@@ -82,7 +82,7 @@ class Prepared:
         Normalised time within the moving part of the trial (0 at the start, 1 at the stop;
         clipped for standing rows).
     phase_label : ndarray of int
-        Index into :data:`pipeline.diagnosis.config.PHASES` per row.
+        Index into :data:`tympani.pipeline.diagnosis.config.PHASES` per row.
     lag_groups : tuple
         ``(index (T_g, m), valid (T_g, m), dt_s)`` per group of trials with one sample period.
     quad : ArcQuadrature
@@ -146,7 +146,7 @@ class Prepared:
         Parameters
         ----------
         law : FrictionParams
-            The friction law (:func:`pipeline.model.friction.stribeck`).
+            The friction law (:func:`tympani.pipeline.model.friction.stribeck`).
 
         Returns
         -------
@@ -241,7 +241,7 @@ def _lag_groups(trial: np.ndarray, time_s: np.ndarray) -> tuple:
 
 
 def _phases(trial: np.ndarray, time_s: np.ndarray, standing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised moving time (0..1) and the :data:`pipeline.diagnosis.config.PHASES` label per row."""
+    """Normalised moving time (0..1) and the :data:`tympani.pipeline.diagnosis.config.PHASES` label per row."""
     t = pd.Series(time_s)
     moving_t = t.where(~standing)
     first = moving_t.groupby(trial).transform("min").to_numpy()

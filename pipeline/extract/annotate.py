@@ -1,9 +1,9 @@
 """Annotated frames for checking extraction by eye, and manual labels to compare against.
 
 :func:`annotate_video` registers and measures a video exactly as ``extract`` does (it runs
-:func:`pipeline.extract.stream.measure_frames`) and writes, for the chosen frames,
+:func:`tympani.pipeline.extract.stream.measure_frames`) and writes, for the chosen frames,
 ``<trial>.frame<NNNNNN>.png`` with the walls, centre, array, contact arc, tip, contact start and
-angles drawn on them (:func:`vision.drawing.annotate_frame`), optionally an annotated
+angles drawn on them (:func:`tympani.vision.drawing.annotate_frame`), optionally an annotated
 ``<trial>.annotated.mp4`` of every frame, and ``<trial>.annotated.csv`` with the automatic
 angles of the drawn frames.
 

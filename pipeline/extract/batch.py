@@ -2,10 +2,10 @@
 
 The layers follow trackpy's ``locate``/``batch``:
 
-- :func:`~pipeline.extract.stream.measure_frames` streams a
-  :class:`~vision.frames.FrameSource` through registration and measurement, one
-  :class:`~pipeline.extract.stream.MeasuredFrame` at a time;
-- :func:`~pipeline.extract.video.extract_video` collects that stream into the angles table
+- :func:`~tympani.pipeline.extract.stream.measure_frames` streams a
+  :class:`~tympani.vision.frames.FrameSource` through registration and measurement, one
+  :class:`~tympani.pipeline.extract.stream.MeasuredFrame` at a time;
+- :func:`~tympani.pipeline.extract.video.extract_video` collects that stream into the angles table
   (docs/file-formats.md);
 - :func:`process_video` is the unit of work: it takes a *path*, opens it itself (so it runs in
   a worker process or on a Dask worker), writes ``<trial>.angles.csv``,
@@ -15,8 +15,8 @@ The layers follow trackpy's ``locate``/``batch``:
   process, a forkserver process pool, or a ``dask.distributed.Client`` whose workers share the
   output folder) and returns one summary row per video; a failing video never stops the others.
 
-The settings (:class:`~pipeline.extract.config.ExtractConfig`) and the vision functions
-(:class:`~pipeline.extract.config.VisionSteps`) are pickled to the workers.
+The settings (:class:`~tympani.pipeline.extract.config.ExtractConfig`) and the vision functions
+(:class:`~tympani.pipeline.extract.config.VisionSteps`) are pickled to the workers.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def process_video(
     cfg : ExtractConfig
         Settings.
     fps : float, optional
-        Frame rate (frames/s); see :func:`~pipeline.extract.video.extract_video`.
+        Frame rate (frames/s); see :func:`~tympani.pipeline.extract.video.extract_video`.
     trial : str, optional
         Trial name (default: file stem); names the output files.
     overwrite : bool
@@ -107,7 +107,7 @@ def process_video(
     progress : bool
         Per-frame progress bar on stderr.
     steps : VisionSteps
-        The vision functions (default: :mod:`vision.registration`'s and :mod:`vision.angles`'s).
+        The vision functions (default: :mod:`tympani.vision.registration`'s and :mod:`tympani.vision.angles`'s).
 
     Returns
     -------
@@ -264,9 +264,9 @@ def extract_batch(
     Parameters
     ----------
     items : iterable or DataFrame
-        Video paths, :class:`~pipeline.extract.manifest.VideoItem` s, dicts with ``path`` (or ``video``), ``trial``,
-        ``fps``, or a manifest DataFrame (:func:`~pipeline.extract.manifest.read_manifest`;
-        rows without a video are ignored); see :func:`~pipeline.extract.manifest.video_items`.
+        Video paths, :class:`~tympani.pipeline.extract.manifest.VideoItem` s, dicts with ``path`` (or ``video``), ``trial``,
+        ``fps``, or a manifest DataFrame (:func:`~tympani.pipeline.extract.manifest.read_manifest`;
+        rows without a video are ignored); see :func:`~tympani.pipeline.extract.manifest.video_items`.
     out_dir : str or PathLike
         Output folder.
     cfg : ExtractConfig
@@ -286,7 +286,7 @@ def extract_batch(
     fps : float, optional
         Frame rate (frames/s) for items that do not give their own.
     steps : VisionSteps
-        The vision functions (default: :mod:`vision.registration`'s and :mod:`vision.angles`'s;
+        The vision functions (default: :mod:`tympani.vision.registration`'s and :mod:`tympani.vision.angles`'s;
         pickled to workers, so module-level functions).
 
     Returns

@@ -2,9 +2,9 @@
 and the vision functions it calls (:class:`VisionSteps`).
 
 The settings are recorded in every video's provenance; the steps are code, passed next to the
-settings to :func:`~pipeline.extract.video.extract_video`,
-:func:`~pipeline.extract.batch.process_video` and :func:`~pipeline.extract.batch.extract_batch`.
-The default steps are :mod:`vision.registration`'s and :mod:`vision.angles`'s; other steps
+settings to :func:`~tympani.pipeline.extract.video.extract_video`,
+:func:`~tympani.pipeline.extract.batch.process_video` and :func:`~tympani.pipeline.extract.batch.extract_batch`.
+The default steps are :mod:`tympani.vision.registration`'s and :mod:`tympani.vision.angles`'s; other steps
 (simpler stand-ins, another measurement) are module-level functions, so that a
 :class:`VisionSteps` pickles to worker processes and Dask workers.
 """
@@ -68,14 +68,14 @@ class VisionSteps:
 
 @dataclass(frozen=True)
 class ExtractConfig:
-    """What :func:`~pipeline.extract.video.extract_video` needs besides the video.
+    """What :func:`~tympani.pipeline.extract.video.extract_video` needs besides the video.
 
     Parameters
     ----------
     phantom : Phantom
-        Phantom geometry (:mod:`vision.geometry`).
+        Phantom geometry (:mod:`tympani.vision.geometry`).
     array : ElectrodeArray
-        Electrode array (:mod:`vision.geometry`).
+        Electrode array (:mod:`tympani.vision.geometry`).
     recheck_every : int
         Check the registration every this many frames (0: never).
     register_frames : int
@@ -97,23 +97,23 @@ class ExtractConfig:
         frames or at this much, whichever comes first (64 frames of 640x480, 16 of 1920x1080).
     decoder_threads : int or None
         Threads of the video decoder (``vision.frames.VideoFrames``); None leaves FFmpeg's
-        default, one per core. :func:`~pipeline.extract.batch.extract_batch` runs its workers'
+        default, one per core. :func:`~tympani.pipeline.extract.batch.extract_batch` runs its workers'
         decoders on one thread when this is None, as every core then has a worker of its own.
     glitch_rad : float
         A measured frame whose theta_tip or theta_bot lies more than this (rad) from the median
         of it and its two measured neighbours on each side is marked not ok as a glitch
-        (:func:`~pipeline.extract.video.flag_glitches`); 0 keeps every frame.
+        (:func:`~tympani.pipeline.extract.video.flag_glitches`); 0 keeps every frame.
     kinematics_tol_mm : float
         A measured frame whose insertion depth lies more than this (mm; or five robust standard
         deviations of the video's depths about it, if more) from the video's constant-speed
-        insertion is marked not ok (:func:`pipeline.extract.kinematics.flag_kinematics`), in runs as
+        insertion is marked not ok (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`), in runs as
         well as alone; 0 keeps every frame.
     calibration : vision.frames.LensCalibration or None
-        The camera's lens. Frames are undistorted with it (:func:`vision.frames.undistorter`)
+        The camera's lens. Frames are undistorted with it (:func:`tympani.vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole
         image that the registration's similarity (phantom mm to image px) describes; the
         measurement samples the recorded frames where the lens put its strip's points
-        (:meth:`~vision.frames.LensCalibration.distort_points`), which costs nothing a frame.
+        (:meth:`~tympani.vision.frames.LensCalibration.distort_points`), which costs nothing a frame.
         None: frames are taken as they are.
     """
 

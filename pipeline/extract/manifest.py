@@ -104,7 +104,7 @@ def read_manifest(path: str | os.PathLike, *, check_files: bool = True) -> pd.Da
     The manifest is a CSV with a header row and one row a trial: ``trial``, ``speed_mm_s``,
     ``force`` and ``video`` and/or ``angles`` (file paths relative to the manifest's folder),
     optionally ``fps``, ``video_t0_s``, ``depth`` (a depth log) and ``format`` (a log format
-    file, :mod:`pipeline.force.logformat`). Blank lines and lines starting with ``#`` are skipped.
+    file, :mod:`tympani.pipeline.force.logformat`). Blank lines and lines starting with ``#`` are skipped.
     Further columns are kept.
 
     Parameters

@@ -1,6 +1,6 @@
 """What measuring one video records: its registrations (:class:`Epoch`), checks
 (:class:`Check`) and lost spans (:class:`LostSpan`), gathered in an :class:`ExtractLog`, and
-each frame's result (:class:`MeasuredFrame`). :mod:`pipeline.extract.stream` makes them."""
+each frame's result (:class:`MeasuredFrame`). :mod:`tympani.pipeline.extract.stream` makes them."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ class Check:
     residual_px : float
         The registration's residual on it (px; NaN when it does not fit at all).
     threshold_px : float
-        The largest residual (px) that passes (:meth:`~pipeline.extract.config.ExtractConfig.recheck_threshold_px`).
+        The largest residual (px) that passes (:meth:`~tympani.pipeline.extract.config.ExtractConfig.recheck_threshold_px`).
     """
 
     frame: int
@@ -123,7 +123,7 @@ class LostSpan:
 @dataclass
 class ExtractLog:
     """What happened while a video was measured (filled in by
-    :func:`~pipeline.extract.stream.measure_frames`).
+    :func:`~tympani.pipeline.extract.stream.measure_frames`).
 
     Attributes
     ----------

@@ -4,7 +4,7 @@ The video is registered on its first ``register_frames`` frames. Every ``recheck
 ``check`` measures the registration's residual on the current frame; above
 ``residual_px * recheck_factor + recheck_margin_px`` the camera is taken to have moved and the
 video is registered again on the next ``register_frames`` frames (the frames since the last
-check were measured with the old registration; :func:`~pipeline.extract.video.extract_video`
+check were measured with the old registration; :func:`~tympani.pipeline.extract.video.extract_video`
 goes back over them). When that registration fails, the registration is *lost*: frames are not
 measured (``ok`` false, with the reason) and the check and registration are tried again after
 ``register_frames`` frames, then twice, four times ... as many, at most ``recheck_every``,
@@ -15,16 +15,16 @@ This is a state machine over the decoded frames (:class:`FrameMachine`). Its sta
 - :class:`Unregistered`: no frame seen yet;
 - :class:`Registering`: frames collected for a registration, at the start or after a failed
   check (``after`` is the state the check failed in);
-- :class:`Registered`: frames are measured with an :class:`~pipeline.extract.records.Epoch`
+- :class:`Registered`: frames are measured with an :class:`~tympani.pipeline.extract.records.Epoch`
   (one registration in force), checked every ``recheck_every`` frames;
 - :class:`Lost`: a re-registration failed; frames are not measured until a retry (at the
-  :class:`~pipeline.extract.records.LostSpan`'s ``retry_at``) finds the old registration
+  :class:`~tympani.pipeline.extract.records.LostSpan`'s ``retry_at``) finds the old registration
   fitting again or registers anew.
 
-Each registration is an :class:`~pipeline.extract.records.Epoch` of the
-:class:`~pipeline.extract.records.ExtractLog`, each check a
-:class:`~pipeline.extract.records.Check`, each lost span a
-:class:`~pipeline.extract.records.LostSpan`; the angles table's ``reg_epoch`` column says which
+Each registration is an :class:`~tympani.pipeline.extract.records.Epoch` of the
+:class:`~tympani.pipeline.extract.records.ExtractLog`, each check a
+:class:`~tympani.pipeline.extract.records.Check`, each lost span a
+:class:`~tympani.pipeline.extract.records.LostSpan`; the angles table's ``reg_epoch`` column says which
 epoch a frame used.
 """
 
@@ -477,7 +477,7 @@ def measure_frames(
     Parameters
     ----------
     source : FrameSource
-        The frames (see :func:`vision.frames.open_frames`).
+        The frames (see :func:`tympani.vision.frames.open_frames`).
     cfg : ExtractConfig
         Phantom, array, registration and measurement settings.
     trial : str
@@ -491,7 +491,7 @@ def measure_frames(
         decoded one, so that the frames waiting for a batch hold no colour copy (a third of
         the memory, and fresh allocations the decoder would otherwise pay for).
     steps : VisionSteps
-        The vision functions (default: :mod:`vision.registration`'s and :mod:`vision.angles`'s).
+        The vision functions (default: :mod:`tympani.vision.registration`'s and :mod:`tympani.vision.angles`'s).
 
     Yields
     ------

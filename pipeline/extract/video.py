@@ -1,10 +1,10 @@
 """One video → its angles table: :func:`extract_video`.
 
-:func:`~pipeline.extract.stream.measure_frames` streams the video through registration and
+:func:`~tympani.pipeline.extract.stream.measure_frames` streams the video through registration and
 measurement; :func:`extract_video` collects that stream into the angles table
 (docs/file-formats.md), then goes back over the frames seen after a camera move but before a
 check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_glitches`) and
-frames off the constant-speed insertion (:func:`pipeline.extract.kinematics.flag_kinematics`),
+frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`),
 and pools how wide the array looks (:func:`array_width`).
 """
 
@@ -87,7 +87,7 @@ def extract_video(
     progress : bool
         Per-frame progress bar on stderr.
     steps : VisionSteps
-        The vision functions (default: :mod:`vision.registration`'s and :mod:`vision.angles`'s).
+        The vision functions (default: :mod:`tympani.vision.registration`'s and :mod:`tympani.vision.angles`'s).
 
     Returns
     -------
@@ -306,7 +306,7 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
     source : FrameSource
         The video, decoded again from the start (seeking is not frame-exact in every codec).
     rows : list of dict
-        The frame rows of :func:`~pipeline.extract.stream.measure_frames`, in frame order;
+        The frame rows of :func:`~tympani.pipeline.extract.stream.measure_frames`, in frame order;
         replaced in place.
     log : ExtractLog
         Its epochs, checks and lost spans.
@@ -341,7 +341,7 @@ def array_width(rows: list[dict], array: ElectrodeArray, *, tolerance: float = 0
     """How wide the array looks against the model the measurement assumes.
 
     The measurement reads the gap to the wall from the modelled diameters
-    (:class:`~vision.geometry.ElectrodeArray`), so an array wider or narrower than its model
+    (:class:`~tympani.vision.geometry.ElectrodeArray`), so an array wider or narrower than its model
     biases every gap, and with them where contact begins (theta_bot). Each measured frame's
     ``width_ratio`` (seen width between the two edges over the modelled width; about 1.01 for
     rendered arrays of the modelled size, and 0.86 and 1.21 for arrays 15 % narrower and 20 %

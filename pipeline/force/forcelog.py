@@ -2,7 +2,7 @@
 
 A force log is a CSV whose lines starting with ``#`` are comments: a header naming ``time_s``
 and ``force_g`` or ``force_N`` (optionally ``depth_mm``), then one row a sample. What is wrong
-with a log either stops it with a one-line :class:`~vision.errors.InputError` naming the file
+with a log either stops it with a one-line :class:`~tympani.vision.errors.InputError` naming the file
 and the line, or is repaired by a documented cleaning step that is recorded in the
 :class:`ForceLogReport`:
 

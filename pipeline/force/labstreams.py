@@ -5,12 +5,12 @@
 
 - **Force** (``[force]``): the time column in its unit, the force column times unit, sign and
   gain, in g; then the same checks and cleaning as a force log in tympani's own form
-  (:func:`pipeline.force.forcelog.clean_force_samples`). Integer stamps (epoch nanoseconds overflow a
+  (:func:`tympani.pipeline.force.forcelog.clean_force_samples`). Integer stamps (epoch nanoseconds overflow a
   float's exact integers) stay int64 until the force log's first stamp is subtracted, so the
   synced table's ``time_s`` counts seconds from the force log's first sample, exactly. Without
   ``[force]`` the force log is in tympani's own form and ``time_s`` is its own.
 - **Depth** (``[depth]``, the manifest's ``depth`` column): the stage's position log on the same
-  clock. Its motion start and stop are found (:func:`pipeline.force.motion.find_motion`) and its
+  clock. Its motion start and stop are found (:func:`tympani.pipeline.force.motion.find_motion`) and its
   position is interpolated linearly onto the force samples as ``depth_mm`` (empty outside the
   depth log: no extrapolation). Without ``[depth]`` a depth log has tympani's columns ``time_s`` and
   ``depth_mm``.
@@ -21,7 +21,7 @@
   stamps are put on the force clock like the depth's), ``"motion_start"`` the depth log's motion
   start (with its uncertainty), a number that many seconds.
 
-Every refusal is an :class:`~vision.errors.InputError` naming the file (for a bag
+Every refusal is an :class:`~tympani.vision.errors.InputError` naming the file (for a bag
 ``file#topic``) and the log format's key: a column the log lacks, a clock that goes backwards,
 a depth log that never moves, streams that do not overlap in time.
 """
@@ -184,7 +184,7 @@ class AngleTrack:
     angles : DataFrame
         ``time_s`` (s, the track's clock), ``theta_tip``, ``theta_bot``, ``theta_con`` (rad, NaN
         when the tracker does not give them), ``ok`` (theta_tip measured), ``frame`` (row
-        number), ``line``; ``attrs["warnings"]`` as :func:`pipeline.force.sync.read_angles_table`.
+        number), ``line``; ``attrs["warnings"]`` as :func:`tympani.pipeline.force.sync.read_angles_table`.
     offset_s : float
         ``video_t0_s``: force-clock time of the track's ``t = 0`` (s).
     uncertainty_s : float
@@ -208,7 +208,7 @@ class LabLogs:
     Parameters
     ----------
     force : DataFrame
-        :data:`pipeline.force.forcelog.FORCE_LOG_COLUMNS`; ``depth_mm`` from the depth log when the
+        :data:`tympani.pipeline.force.forcelog.FORCE_LOG_COLUMNS`; ``depth_mm`` from the depth log when the
         trial has one.
     force_report : ForceLogReport
     clock : Clock
@@ -352,7 +352,7 @@ def read_force_stream(path: str | os.PathLike, fmt: ForceFormat, cfg: ForceLogCo
     Returns
     -------
     data : DataFrame
-        :data:`pipeline.force.forcelog.FORCE_LOG_COLUMNS`: ``time_s`` (s from the first sample),
+        :data:`tympani.pipeline.force.forcelog.FORCE_LOG_COLUMNS`: ``time_s`` (s from the first sample),
         ``force_g`` (g: value × unit × sign × gain), ``depth_mm`` (NaN), ``saturated``, ``line``.
     report : ForceLogReport
     clock : Clock

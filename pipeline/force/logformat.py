@@ -31,8 +31,8 @@ is used (ns); with it, a ``header.stamp``-like field (seconds and nanoseconds) o
 ``time_unit``. ``[depth]`` also takes ``sign`` (default 1).
 
 This module only parses and checks the file (:func:`read_log_format`); the logs are read by
-:mod:`pipeline.force.labstreams`. A key the file does not know, a missing key, a value of the wrong
-type or a unit not listed is an :class:`~vision.errors.InputError` naming the file and the key.
+:mod:`tympani.pipeline.force.labstreams`. A key the file does not know, a missing key, a value of the wrong
+type or a unit not listed is an :class:`~tympani.vision.errors.InputError` naming the file and the key.
 """
 
 from __future__ import annotations

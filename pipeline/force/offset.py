@@ -70,7 +70,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SyncConfig:
-    """Settings of a sync (:func:`pipeline.force.sync.sync_manifest`) and of :func:`estimate_offset`.
+    """Settings of a sync (:func:`tympani.pipeline.force.sync.sync_manifest`) and of :func:`estimate_offset`.
 
     Parameters
     ----------
@@ -457,7 +457,7 @@ def estimate_offset(
     angles : DataFrame
         Angles table on the video clock (``time_s`` s, angles rad, ``ok``).
     force : DataFrame
-        Force log as read by :func:`~pipeline.force.forcelog.read_force_log` (``time_s`` s,
+        Force log as read by :func:`~tympani.pipeline.force.forcelog.read_force_log` (``time_s`` s,
         ``force_g`` g, optional ``depth_mm`` mm and ``saturated``).
     cfg : SyncConfig
         ``signal``, ``min_r2``, ``min_overlap``, ``max_abs_offset_s``, ``link_degree``,

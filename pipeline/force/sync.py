@@ -11,14 +11,14 @@ stacks the trials into one table::
 ``time_s`` is the force clock; ``video_time_s = time_s - sync_offset_s``.
 
 A lab's own logs (epoch stamps, newtons with a sign and a gain, a depth log of the robot's stage,
-another tracker's angle track) are read through a log format file (:mod:`pipeline.force.logformat`,
-:mod:`pipeline.force.labstreams`): the manifest's ``format`` column or ``log_format`` for the rows
+another tracker's angle track) are read through a log format file (:mod:`tympani.pipeline.force.logformat`,
+:mod:`tympani.pipeline.force.labstreams`): the manifest's ``format`` column or ``log_format`` for the rows
 without one. A depth log (manifest column ``depth``) fills ``depth_mm``; another tracker's track
 brings its own offset (its ``zero``: the force log's clock, the depth log's motion start, or a
 number of seconds) instead of the estimate. ``docs/lab-logs.md`` works through an example.
 
 The offset is taken from the manifest's ``video_t0_s`` or estimated from the data
-(:mod:`pipeline.force.offset`, which also holds the settings, :class:`SyncConfig`).
+(:mod:`tympani.pipeline.force.offset`, which also holds the settings, :class:`SyncConfig`).
 
 The synced table is read back by :func:`read_synced`, for every analysis.
 
@@ -115,7 +115,7 @@ class TrialSync:
     angles_path, force_path : str or None
         Inputs.
     force_report : dict or None
-        The force log's :class:`~pipeline.force.forcelog.ForceLogReport` as a dict.
+        The force log's :class:`~tympani.pipeline.force.forcelog.ForceLogReport` as a dict.
     warnings : tuple of str
         One-line warnings.
     format_path : str or None
@@ -123,7 +123,7 @@ class TrialSync:
     depth_path : str or None
         Its depth log, if any.
     depth : dict or None
-        The depth log's summary (:meth:`pipeline.force.labstreams.DepthLog.summary`): samples, span and
+        The depth log's summary (:meth:`tympani.pipeline.force.labstreams.DepthLog.summary`): samples, span and
         the motion start and stop found (s on the force clock, with their uncertainties).
     clock_origin : str or None
         With a ``[force]`` format: the force log's first stamp as written (``time_s`` counts
@@ -195,7 +195,7 @@ def read_synced(path: str | os.PathLike) -> pd.DataFrame:
     """Read a synced table (docs/file-formats.md), as :func:`write_sync` writes it or by hand.
 
     A line whose first non-blank character is ``#`` is a comment and blank lines are skipped;
-    a ``#`` anywhere else is part of a field (as in :func:`~pipeline.io.csv_records`), so a
+    a ``#`` anywhere else is part of a field (as in :func:`~tympani.pipeline.io.csv_records`), so a
     number cell such as ``0.5 # note`` is an error naming its line, never a cut line. No
     column is required here: each analysis checks the columns it needs.
 
@@ -538,7 +538,7 @@ def sync_manifest(
         Folder of ``<trial>.angles.csv`` for trials whose manifest row names no ``angles``
         table (the ``--out`` of ``tympani extract``); default: the manifest's folder.
     log_format : str or PathLike, optional
-        A log format file (:mod:`pipeline.force.logformat`, docs/lab-logs.md) for the rows whose
+        A log format file (:mod:`tympani.pipeline.force.logformat`, docs/lab-logs.md) for the rows whose
         ``format`` cell is blank; without either, the logs are read in tympani's own form.
 
     Returns

@@ -184,7 +184,7 @@ def check_synced(table: pd.DataFrame, source: str | os.PathLike = "synced table"
     Parameters
     ----------
     table : DataFrame
-        A synced table as :func:`pipeline.force.sync.read_synced` reads it: at least
+        A synced table as :func:`tympani.pipeline.force.sync.read_synced` reads it: at least
         ``speed_mm_s`` (mm/s), ``force_g`` (g) and an angle (``theta_con`` or ``theta_tip``,
         rad); ``trial`` and ``time_s`` (s) are used when present (clusters,
         autocorrelation), ``saturated`` too.

@@ -1,6 +1,6 @@
 """The files of ``tympani bounds``: ``bounds.json``, ``bounds_bands.csv`` and their provenance.
 
-:func:`bounds_record` is the content of ``bounds.json`` (the fits of :mod:`pipeline.model.bounds`
+:func:`bounds_record` is the content of ``bounds.json`` (the fits of :mod:`tympani.pipeline.model.bounds`
 per speed, the recommended bound and :func:`quote`, what to quote in plain words);
 :func:`write_bounds` writes it with the bands table, atomically.
 """

@@ -4,7 +4,7 @@ Logs from other trackers often give the tip angle only (no contact start ``theta
 contact angle ``theta_con``), and a lab's first trials are often at one speed. The friction-model
 fit needs the contact angles; the diagnosis needs them and several speeds with repeats. Rather
 than a count of "usable rows", :func:`require` says what the data lack, naming what they have
-(:class:`NotEnoughData`, an :class:`~vision.errors.InputError`: exit status 2 on the command
+(:class:`NotEnoughData`, an :class:`~tympani.vision.errors.InputError`: exit status 2 on the command
 line; ``tympani run`` records the stage as not run and its report gives the same line).
 """
 

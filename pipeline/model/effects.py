@@ -2,7 +2,7 @@
 
 Each :class:`Effect` turns the base model's force into an augmented force with one or two
 parameters; all of them have a *null* value at which they change nothing, so "no effect" is
-always inside the search. The diagnosis (:mod:`pipeline.diagnosis.analysis`) fits base + effect and asks
+always inside the search. The diagnosis (:mod:`tympani.pipeline.diagnosis.analysis`) fits base + effect and asks
 which effect explains a sim-to-real gap on held-out speeds.
 
 An effect sees the data through an :class:`EffectContext` (per-row arrays built once per
@@ -10,7 +10,7 @@ dataset) and the base model's friction coefficient ``mu`` at each row's speed (i
 the base parameters are fitted).
 
 These are the *library's* functional forms. Synthetic experiments with hidden effects are
-generated with different forms (:mod:`pipeline.synthetic.experiment`), so the diagnosis is always tested
+generated with different forms (:mod:`tympani.pipeline.synthetic.experiment`), so the diagnosis is always tested
 on a model-form mismatch.
 """
 
@@ -43,7 +43,7 @@ def bump_integrals(
     For ``u = s / l_con`` along the arc and the bump ``b(u) = 4 u (1 - u)`` (1 at mid-arc, 0 at
     both ends), returns ``(integral b (n_out . x_w) ds, integral b t_f ds)`` in mm, by midpoint
     quadrature on the outer wall, with ``t_f`` the friction's component along the insertion axis
-    (1 for the default axial projection, ``t . x_w`` for the vector sum; :mod:`pipeline.model.friction`).
+    (1 for the default axial projection, ``t . x_w`` for the vector sum; :mod:`tympani.pipeline.model.friction`).
     Zero where there is no contact.
 
     Parameters

@@ -29,7 +29,7 @@ Two readings of the friction term (``friction_mode``):
 
 - ``"axial"`` (**default**): every element's friction magnitude is transmitted along the array
   to its base, ``t_f . x_w = 1``. This is the reading that reproduces the paper's TABLE II,
-  its speed effect in particular (:mod:`pipeline.model.paper`, ``tympani paper``): fitted to the
+  its speed effect in particular (:mod:`tympani.pipeline.model.paper`, ``tympani paper``): fitted to the
   table it falls by 1.05–1.77 % from 0.5 to 7.5 mm/s at every step, as the table does
   (1.03–1.94 %), with every cell within 6.3 %.
 - ``"vector"``: the friction vectors are summed and then projected, ``t_f = t``, as Eqs. (2)–(5)
@@ -66,7 +66,7 @@ angle is placed on the wall at the outer-wall vertex with the same backbone angl
 beside the centreline point); angles outside the channel are clipped to it.
 
 The paper's scenarios (TABLE I), its simulated forces (TABLE II) and the fit of the constants it
-does not print are in :mod:`pipeline.model.paper`; :class:`FrictionParams`' defaults are that fit.
+does not print are in :mod:`tympani.pipeline.model.paper`; :class:`FrictionParams`' defaults are that fit.
 """
 
 from __future__ import annotations
@@ -175,10 +175,10 @@ class PiecewisePressure:
 class FrictionParams:
     """Parameters of the paper's friction model (Eqs. 2–7, docs/paper.md).
 
-    The defaults are the seed paper's S4 as fitted to its TABLE II (:func:`pipeline.model.paper.fit_table_ii`,
+    The defaults are the seed paper's S4 as fitted to its TABLE II (:func:`tympani.pipeline.model.paper.fit_table_ii`,
     ``tympani paper``): the quoted coefficients with 0.18 static, the fitted Stribeck constants
     and contact width, and pressure laws that are the least-squares lines with non-negative
-    coefficients through S4's six steps (:func:`pipeline.model.paper.paper_params`).
+    coefficients through S4's six steps (:func:`tympani.pipeline.model.paper.paper_params`).
 
     Parameters
     ----------
@@ -560,7 +560,7 @@ def insertion_force(
     params : FrictionParams
         Friction law, contact width (mm) and pressure laws (MPa vs rad).
     phantom : Phantom or ContactGeometry
-        Phantom frame geometry (default: :data:`~vision.geometry.DEFAULT_PHANTOM`).
+        Phantom frame geometry (default: :data:`~tympani.vision.geometry.DEFAULT_PHANTOM`).
     friction_mode : {"vector", "axial"}
         See :func:`force_from_integrals`.
 

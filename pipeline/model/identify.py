@@ -1,18 +1,18 @@
 """Identify friction and pressure parameters of the paper's friction model from a synced table.
 
-``tympani fit SYNCED --out DIR`` calls :func:`pipeline.force.sync.read_synced`, :func:`fit_synced` and
+``tympani fit SYNCED --out DIR`` calls :func:`tympani.pipeline.force.sync.read_synced`, :func:`fit_synced` and
 :func:`write_fit`.
 
 Method
 ------
 Bounded nonlinear least squares (:func:`scipy.optimize.least_squares`, trust-region reflective)
-of the measured force (g) against :func:`pipeline.model.friction.insertion_force` over every row of
+of the measured force (g) against :func:`tympani.pipeline.model.friction.insertion_force` over every row of
 every trial and speed, from several seeded starts. The first start is the base parameters; the
 others draw the friction constants at random (seeded) within plausible ranges and set the
 pressure coefficients, for those friction constants, by *linear* least squares (the force is
 linear in the four pressure coefficients), so every start begins near a sensible pressure
 scale. The geometry integrals of every row are computed once
-(:func:`pipeline.model.friction.arc_integrals`), so one model evaluation over 10^4 rows costs well
+(:func:`tympani.pipeline.model.friction.arc_integrals`), so one model evaluation over 10^4 rows costs well
 under a millisecond.
 
 What is identified, and what is not
@@ -26,7 +26,7 @@ What is identified, and what is not
   be free; extra ones are held with a warning (``delta_s`` first, then ``mu_v_s_per_mm``,
   ``v_s_mm_s``, ``mu_s``). By default ``delta_s`` (0.348, TABLE II's) and ``mu_v = 0`` are held.
 - The friction term is a small share of the force on realistic arcs (see
-  :mod:`pipeline.model.friction`), so ``mu`` values carry much larger relative uncertainties than
+  :mod:`tympani.pipeline.model.friction`), so ``mu`` values carry much larger relative uncertainties than
   pressures. Pairs with ``|corr| > 0.95``, parameters at a bound, a nearly singular Jacobian
   and starts that end in different minima are reported as warnings.
 
@@ -122,7 +122,7 @@ __all__ = [
 #: Columns a synced table must have (docs/file-formats.md).
 SYNCED_COLUMNS = ("trial", "speed_mm_s", "time_s", "force_g", "theta_tip", "theta_bot", "theta_con")
 
-#: Bounds of every parameter (units as in :class:`pipeline.model.friction.FrictionParams`).
+#: Bounds of every parameter (units as in :class:`tympani.pipeline.model.friction.FrictionParams`).
 PARAM_BOUNDS: dict[str, tuple[float, float]] = {
     "mu_s": (0.0, 1.5),
     "mu_k": (0.0, 1.5),
@@ -166,7 +166,7 @@ class FitOptions:
     Parameters
     ----------
     free : tuple of str
-        Parameters to fit (names of :data:`pipeline.model.friction.FLAT_NAMES`).
+        Parameters to fit (names of :data:`tympani.pipeline.model.friction.FLAT_NAMES`).
     base : FrictionParams
         Values of the held parameters and the first start (linear pressure laws).
     fixed : mapping of str to float
@@ -180,7 +180,7 @@ class FitOptions:
     min_rows : int
         Fewest usable rows accepted.
     friction_mode : {"vector", "axial"}
-        Model variant (:func:`pipeline.model.friction.force_from_integrals`); "axial" (default) reproduces the
+        Model variant (:func:`tympani.pipeline.model.friction.force_from_integrals`); "axial" (default) reproduces the
         paper's TABLE II.
     moving_only : bool
         Fit only rows where the robot moves, when the table has ``depth_mm`` (see

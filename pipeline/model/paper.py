@@ -18,7 +18,7 @@ Fitting TABLE II
 The paper leaves five things open: the effective contact width ``b_c``, the Stribeck velocity
 ``v_s`` and exponent ``delta_s``, which of the quoted coefficients 0.12 and 0.18 is static, and
 the fourth p_bot of TABLE I, printed 0.01 inside an increasing sequence (0.10 is the likely
-reading). The model's friction projection (:mod:`pipeline.model.friction`, ``friction_mode``) is a
+reading). The model's friction projection (:mod:`tympani.pipeline.model.friction`, ``friction_mode``) is a
 sixth choice. The table carries two kinds of information, and each choice is settled by the kind
 that speaks to it:
 
@@ -272,7 +272,7 @@ def simulate(
     phantom : Phantom or ContactGeometry
         Geometry.
     friction_mode : {"axial", "vector"}
-        See :mod:`pipeline.model.friction`.
+        See :mod:`tympani.pipeline.model.friction`.
 
     Returns
     -------
@@ -336,7 +336,7 @@ def peak_force_change(
     friction : FrictionParams, optional
         Friction constants (default: the TABLE II fit).
     friction_mode : {"axial", "vector"}
-        See :mod:`pipeline.model.friction`.
+        See :mod:`tympani.pipeline.model.friction`.
     """
     table = simulate(scenario_name, [v_ref_mm_s, v_mm_s], friction=friction, friction_mode=friction_mode)
     peaks = table.groupby("speed_mm_s")["force_g"].max()
@@ -571,7 +571,7 @@ def paper_params() -> FrictionParams:
     The friction constants and contact width are :class:`FrictionParams`' defaults (the TABLE II
     fit); ``p_tip`` and ``p_bot`` are the least-squares lines through S4's six steps (MPa against
     theta_con in rad) with non-negative coefficients, the form a fit to measured data takes
-    (:mod:`pipeline.model.identify` bounds the intercepts at 0). Synthetic experiments use it as their
+    (:mod:`tympani.pipeline.model.identify` bounds the intercepts at 0). Synthetic experiments use it as their
     base model; :class:`FrictionParams`' default pressures are these lines.
     """
     sc = SCENARIOS["S4"]

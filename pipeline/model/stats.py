@@ -1,7 +1,7 @@
 """Small statistics shared by the fits: autocorrelation, effective sample size, covariances.
 
-Every fit of the pipeline (:mod:`pipeline.model.identify`, :mod:`pipeline.model.bounds`,
-:mod:`pipeline.diagnosis.analysis`) has rows that come in trials (one force curve each), in time order
+Every fit of the pipeline (:mod:`tympani.pipeline.model.identify`, :mod:`tympani.pipeline.model.bounds`,
+:mod:`tympani.pipeline.diagnosis.analysis`) has rows that come in trials (one force curve each), in time order
 within a trial. Samples along a curve are autocorrelated, trials are independent; the functions
 here turn that into standard errors and model-selection criteria.
 
@@ -54,8 +54,8 @@ def lag1_autocorrelation(residual: np.ndarray, groups: np.ndarray, *, centre: bo
         Group (trial) label of each row (any comparable type).
     centre : bool
         Subtract the mean residual first (the residuals of a least-squares fit of the force,
-        :mod:`pipeline.model.identify`); False uses them as they are (the log-model and Pearson
-        residuals of :mod:`pipeline.model.bounds`).
+        :mod:`tympani.pipeline.model.identify`); False uses them as they are (the log-model and Pearson
+        residuals of :mod:`tympani.pipeline.model.bounds`).
 
     Returns
     -------

@@ -147,7 +147,7 @@ def plot_log_force(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | o
         Synced table (``speed_mm_s`` mm/s, the fits' angle in rad, ``force_g`` g); only samples
         with F > 0 and a positive angle are drawn.
     fits : sequence of SpeedFit
-        Eq. (8) fits (:func:`pipeline.model.bounds.fit_bounds`).
+        Eq. (8) fits (:func:`tympani.pipeline.model.bounds.fit_bounds`).
     path : str or PathLike
         PNG to write.
 
@@ -194,7 +194,7 @@ def plot_bounds(synced: pd.DataFrame, fits: Sequence[SpeedFit], path: str | os.P
     synced : DataFrame
         Synced table (``speed_mm_s`` mm/s, the fits' angle in rad, ``force_g`` g).
     fits : sequence of SpeedFit
-        Fits from :func:`pipeline.model.bounds.fit_bounds`.
+        Fits from :func:`tympani.pipeline.model.bounds.fit_bounds`.
     path : str or PathLike
         PNG to write.
 

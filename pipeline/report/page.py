@@ -1,12 +1,12 @@
 """The report of ``tympani run``: one self-contained HTML page.
 
-:func:`write_report` reads the files :func:`pipeline.run.run_pipeline` wrote in an output folder
+:func:`write_report` reads the files :func:`tympani.pipeline.run.run_pipeline` wrote in an output folder
 (``run.json``, ``trials.csv``, ``synced.csv``, ``fit/fit.json``, ``bounds/bounds.json``,
 ``diagnosis/diagnosis.json`` and the PNG figures the stages drew) and writes ``report.html``
 beside them. Figures are embedded as base64 PNG, tables are inline HTML, the style sheet is
 inline: the page loads nothing from anywhere (links to the machine-readable files beside it are
 plain relative links). The report draws no figure of its own: it embeds the stages' figures
-(:mod:`pipeline.report.figures`, :mod:`pipeline.diagnosis.report`).
+(:mod:`tympani.pipeline.report.figures`, :mod:`tympani.pipeline.diagnosis.report`).
 
 :func:`load_report_data` (files → dict) and :func:`render_html` (dict → text) are separate, so
 the page can be tested without files and the data without HTML.

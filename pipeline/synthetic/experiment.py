@@ -2,7 +2,7 @@
 
 ``tympani render`` calls :func:`render_experiment`. One experiment is one camera set-up (one
 pose, one look) and several trials per insertion speed; trials differ in how the contact run
-grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is written::
+grows (:class:`tympani.vision.rendering.ContactPolicy`) and in their noise. What is written::
 
     OUT/manifest.csv           trial, speed_mm_s, video, force, fps, video_t0_s (docs/file-formats.md)
     OUT/videos/<trial>.mp4     (or a PNG folder with --png)
@@ -11,12 +11,12 @@ grows (:class:`vision.rendering.ContactPolicy`) and in their noise. What is writ
     OUT/truth/pose.json        the camera pose (the registration JSON's keys) and the render settings
     OUT/truth/effect.json      the hidden effect (or null) and its noiseless gap vs the noise
 
-The force is the model of :mod:`pipeline.model.friction` with the paper's S4 constants as fitted to
-its TABLE II (:func:`pipeline.model.paper.paper_params`) on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
+The force is the model of :mod:`tympani.pipeline.model.friction` with the paper's S4 constants as fitted to
+its TABLE II (:func:`tympani.pipeline.model.paper.paper_params`) on the true angles, plus sensor noise and 13-bit quantisation; frame 0 of the video is at
 ``video_t0_s`` on the force log's clock.
 
 With ``ExperimentConfig.effect`` set, a hidden unmodelled effect (docs/diagnosis.md) is applied to the
-force logs with the generator forms of :mod:`pipeline.synthetic.family_a` (not the library forms the
+force logs with the generator forms of :mod:`tympani.pipeline.synthetic.family_a` (not the library forms the
 diagnosis fits), and ``OUT/truth/effect.json`` records it: name, strength, parameters, and the
 noiseless gap (RMS of the force with minus without the effect) against the noise. The
 parameters are drawn from a generator of their own (seeded from ``seed``), so the videos, the
@@ -110,10 +110,10 @@ class ExperimentConfig:
     effect : str or None
         Hidden effect (its name, as the diagnosis names it) applied to the force logs, or None.
     strength : float
-        Size of the hidden effect (0 absent, 1 typical; see :mod:`pipeline.synthetic.family_a`).
+        Size of the hidden effect (0 absent, 1 typical; see :mod:`tympani.pipeline.synthetic.family_a`).
     effect_params : tuple of (str, float) pairs
         Effect parameters that replace the drawn ones (units in the names), e.g. the lift
-        calibrated to the paper's speed drop (:data:`pipeline.synthetic.family_a.PAPER_LIFT`).
+        calibrated to the paper's speed drop (:data:`tympani.pipeline.synthetic.family_a.PAPER_LIFT`).
     paired : bool
         Repeat ``k`` at every speed shares its contact growth (a paired design: the change of
         force between speeds is then not blurred by which placements each speed drew).
@@ -147,7 +147,7 @@ class VideoTruth(EffectTruth):
     sensor : SensorConfig
         The force sensor.
 
-    The other parameters are those of :class:`pipeline.synthetic.family_a.EffectTruth`.
+    The other parameters are those of :class:`tympani.pipeline.synthetic.family_a.EffectTruth`.
     """
 
     seed: int
@@ -197,7 +197,7 @@ def clean_forces_from_truth(
     effect : str or None
         Hidden effect (its name) or None.
     effect_values : dict, optional
-        Its parameters (:func:`pipeline.synthetic.family_a.draw_effect_params`).
+        Its parameters (:func:`tympani.pipeline.synthetic.family_a.draw_effect_params`).
     rng : numpy.random.Generator, optional
         Randomness of the effect (drift's random walk).
 
@@ -255,7 +255,7 @@ def force_log_from_truth(
     effect : str or None
         Hidden effect (its name) applied before the noise, or None.
     effect_values : dict, optional
-        Its parameters (:func:`pipeline.synthetic.family_a.draw_effect_params`).
+        Its parameters (:func:`tympani.pipeline.synthetic.family_a.draw_effect_params`).
     effect_rng : numpy.random.Generator, optional
         Randomness of the effect (default: a fixed generator), kept apart from ``rng``.
 

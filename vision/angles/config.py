@@ -240,7 +240,7 @@ class FrameMeasurement:
         tip is in the entry channel), ``contrast`` (fluid minus array, grey levels),
         ``edge_fraction`` (fraction of the array's stations whose edges were used),
         ``width_ratio`` (the array's width between its two edges over the modelled
-        :class:`~vision.geometry.ElectrodeArray`'s, median over the stations where both show;
+        :class:`~tympani.vision.geometry.ElectrodeArray`'s, median over the stations where both show;
         NaN where fewer than 10 do: about 1.01 when the model is right), ``bare_tip_mm`` (length
         of the array, mm, between its last station with measured edges and the tip: the tip's
         offset is extrapolated over it), ``time_ms`` (ms spent on the frame).

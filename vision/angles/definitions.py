@@ -90,7 +90,7 @@ def contact_angles(
     theta : ndarray, shape (n,), optional
         The points' angles (rad, unwrapped) if already known (the measurement computes them with
         precomputed constants, see :func:`spiral_angle`); otherwise
-        :func:`vision.geometry.point_angle`.
+        :func:`tympani.vision.geometry.point_angle`.
 
     Returns
     -------
@@ -124,12 +124,12 @@ def contact_angles(
 
 @dataclass(frozen=True, eq=False)
 class AngleTable:
-    """The constants :func:`vision.geometry.point_angle` derives from a phantom, computed once
+    """The constants :func:`tympani.vision.geometry.point_angle` derives from a phantom, computed once
     per plan so that :func:`spiral_angle` costs a dozen NumPy calls per frame.
 
     ``turns`` are the candidate offsets 2πk (rad); ``origin``, ``x_w``, ``normal`` (mm, unit)
     the entry frame and ``entry_width_mm`` the entry channel's width (mm); the rest are
-    :class:`~vision.geometry.Phantom` fields of Eq. (1) and the channel's ends (rad).
+    :class:`~tympani.vision.geometry.Phantom` fields of Eq. (1) and the channel's ends (rad).
     """
 
     turns: np.ndarray
@@ -162,7 +162,7 @@ def angle_table(phantom: Phantom) -> AngleTable:
 
 def spiral_angle(xy: np.ndarray, t: AngleTable) -> np.ndarray:
     """Unwrapped angles (rad) of points ``xy`` (mm, shape (n, 2)): the same arithmetic as
-    :func:`vision.geometry.point_angle`, with the phantom's constants precomputed in ``t``.
+    :func:`tympani.vision.geometry.point_angle`, with the phantom's constants precomputed in ``t``.
 
     Candidates clipped to [theta_start, theta_end] (> phi0) keep the logarithm finite, so no
     error-state guard is needed.

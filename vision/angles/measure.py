@@ -24,7 +24,7 @@ from tympani.vision.greyscale import as_float_gray, to_gray
 
 def _grey_levels(frame: np.ndarray) -> np.ndarray:
     """A 2-D grey image (0–255 scale) of a frame: ``uint8`` for a ``uint8`` frame, else float32
-    with the float precision kept (:mod:`vision.greyscale`)."""
+    with the float precision kept (:mod:`tympani.vision.greyscale`)."""
     a = np.asarray(frame)
     if a.size == 0:
         raise ValueError(f"a frame must be 2-D grey or BGR(A) colour, not shape {a.shape}")

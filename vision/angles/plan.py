@@ -229,7 +229,7 @@ def prepare_measurement(
         Settings.
     lens : callable, optional
         Maps ideal (pinhole) image points, an ``(n, 2)`` array in px, to where the camera's lens
-        records them (e.g. :meth:`vision.frames.LensCalibration.distort_points`): the strip then
+        records them (e.g. :meth:`tympani.vision.frames.LensCalibration.distort_points`): the strip then
         samples the recorded frames themselves, and the pose is that of the undistorted image.
 
     Returns

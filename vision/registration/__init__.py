@@ -1,11 +1,11 @@
 """Registration: where the phantom is in the image (see docs/how-it-works.md).
 
 The camera looks straight down, so phantom and image differ by a similarity: centre,
-rotation, scale and possibly a mirror (:class:`vision.geometry.CameraPose`). :func:`register`
+rotation, scale and possibly a mirror (:class:`tympani.vision.geometry.CameraPose`). :func:`register`
 finds it from the channel walls alone, with no initial guess, assuming only that the walls
 show as intensity edges (thin lines, region boundaries or both):
 
-1. **Edges** (:mod:`vision.edges`): the frames are merged (per-pixel median), Canny runs
+1. **Edges** (:mod:`tympani.vision.edges`): the frames are merged (per-pixel median), Canny runs
    with thresholds and smoothing set from the image's own noise, short specks are dropped,
    and each edge pixel is refined to sub-pixel precision. Two fields are splatted from the
    edge points: the *doubled-angle orientation* ``exp(2i·alpha)``, in which the two Canny

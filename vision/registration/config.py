@@ -33,7 +33,7 @@ class RegistrationConfig:
         Best of those that are refined at full resolution.
     edge_sigma_px : float or None
         Gaussian smoothing (px) before Canny; ``None`` chooses it from the image's noise
-        (:func:`vision.edges.auto_sigma`).
+        (:func:`tympani.vision.edges.auto_sigma`).
     min_segment_px : int
         Edge segments shorter than this (px) are dropped as specks.
     refine_sigma_px : float

@@ -201,7 +201,7 @@ def gradients_for_canny(
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | None]:
     """Derivatives (grey levels per px) of ``gray`` smoothed for Canny, and the smoothing (px).
 
-    ``sigma_px`` None picks the smoothing from the noise (:func:`vision.edges.auto_sigma`);
+    ``sigma_px`` None picks the smoothing from the noise (:func:`tympani.vision.edges.auto_sigma`);
     the 1 px derivatives that takes, and their magnitude, are reused when it keeps 1 px
     (clean frames) rather than computed again. The last item is ``cv2.magnitude(gx, gy)``
     when it was computed on the way, else None.

@@ -1,8 +1,8 @@
 """Synthetic overhead frames of the phantom with the electrode array, and their exact truth.
 
-The renderer runs the measurement backwards: geometry (:mod:`vision.geometry`) → image.
+The renderer runs the measurement backwards: geometry (:mod:`tympani.vision.geometry`) → image.
 Ground truth is computed from the very centreline that is drawn, with the angles' definitions
-(docs/file-formats.md, :func:`vision.angles.contact_angles`).
+(docs/file-formats.md, :func:`tympani.vision.angles.contact_angles`).
 
 Pieces, from geometry to file, one module a step:
 
@@ -19,7 +19,7 @@ Pieces, from geometry to file, one module a step:
 * :mod:`.scene` — :class:`Scene`, a static view (pose, appearance, nuisances) that draws frames;
 * :mod:`.video` — :func:`render_video`, a whole insertion (:class:`VideoSpec`) to mp4 or a PNG
   folder, with a truth table;
-* :mod:`.lens` — :func:`distort`, what a lens with a given :class:`vision.frames.LensCalibration`
+* :mod:`.lens` — :func:`distort`, what a lens with a given :class:`tympani.vision.frames.LensCalibration`
   makes of a rendered (ideal pinhole) frame.
 """
 

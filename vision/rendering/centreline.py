@@ -4,7 +4,7 @@
 :func:`array_at_angles` corrects the nominal angles until the measured ones match;
 :func:`pose_at_depth` poses it for an insertion depth, its contact run following a
 :class:`ContactPolicy`. The truth of every pose comes from the drawn centre line, through the
-angles' definitions (:func:`vision.angles.contact_angles`).
+angles' definitions (:func:`tympani.vision.angles.contact_angles`).
 """
 
 from __future__ import annotations

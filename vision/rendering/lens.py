@@ -15,7 +15,7 @@ def distort(image: np.ndarray, calibration: LensCalibration) -> np.ndarray:
 
     Each recorded pixel shows the ideal image where ``cv2.undistortPoints`` (with the camera
     matrix as the new one) sends it, sampled bilinearly; ideal content beyond the frame repeats
-    its edge. :func:`vision.frames.undistorter` inverts this up to interpolation blur and the
+    its edge. :func:`tympani.vision.frames.undistorter` inverts this up to interpolation blur and the
     parts of the ideal image a barrel lens pushes out of the frame.
 
     Parameters

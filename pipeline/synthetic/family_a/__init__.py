@@ -10,13 +10,13 @@ command line. :func:`paper_case` is a dataset calibrated to the seed paper's spe
 
 No inverse crime
 ----------------
-The diagnosis fits the *library* forms of :mod:`pipeline.model.effects`. The data are generated with
+The diagnosis fits the *library* forms of :mod:`tympani.pipeline.model.effects`. The data are generated with
 *different* forms, so a diagnosis is always tested on a model-form mismatch. Side by side
 (``p(u)`` the paper's Eq. (6) pressure at ``u = s / l_con`` from the tip, ``g_n = n_out . x_w``,
 ``g_t = t . x_w`` along the outer wall, ``mu = mu(v)`` the Stribeck law, ``b_c`` the contact width):
 
 =================  ==========================================  ==============================================
-effect             generator (this module)                     library (:mod:`pipeline.model.effects`)
+effect             generator (this module)                     library (:mod:`tympani.pipeline.model.effects`)
 =================  ==========================================  ==============================================
 hydrodynamic_lift  soft-EHL film, *local* load share acting    ``F (1 - a v^n)``: one share for the whole
                    on the pressure:                            arc, a power law of v, independent of load
@@ -57,7 +57,7 @@ pressure_profile   multiplicative skewed (gamma-shaped) bump   additive symmetri
 
 The physical effects (lift, drag, capstan, profile) change the force *at the contact*; the
 generator evaluates them by midpoint quadrature along the arc and adds their difference from the
-same quadrature of the base model to the exact base force (:func:`pipeline.model.friction.insertion_force`),
+same quadrature of the base model to the exact base force (:func:`tympani.pipeline.model.friction.insertion_force`),
 so ``effect=None`` gives exactly the base model plus noise. The sensor effects (lag, drift) act on
 the sensed signal, before the noise and the A/D.
 
@@ -82,11 +82,11 @@ One trial (force clock, ``time_s`` from 0 at the start of the log)::
     t_stop ≤ t ≤ +dwell  robot holds: no sliding (mu = mu_s), drag vanishes, a lagging sensor
                          relaxes, a lift film squeezes out slowly, drift goes on
 
-Trials differ in their contact growth (:func:`vision.rendering.random_policy`), their pressure
+Trials differ in their contact growth (:func:`tympani.vision.rendering.random_policy`), their pressure
 scale (± 10 %), speed (± 2 %) and noise scale. The force noise is white + AR(1) with a per-trial
 scale and a small tare offset, quantised by a 13-bit A/D over ``±range_g``. The angles are the
 renderer's geometry (:func:`kinematics_table`, a vectorised twin of
-:func:`vision.rendering.pose_at_depth`, within ~0.015 rad of it) measured at ``angles_fps`` on the
+:func:`tympani.vision.rendering.pose_at_depth`, within ~0.015 rad of it) measured at ``angles_fps`` on the
 video clock with noise, then interpolated onto the force clock exactly as ``tympani sync`` does;
 so writing the experiment and syncing it gives back the same table.
 

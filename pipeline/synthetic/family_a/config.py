@@ -60,7 +60,7 @@ class Variability:
     speed_frac : float
         Each trial's actual speed is the nominal one times ``U(1 - f, 1 + f)``.
     theta_first_rad : tuple of float
-        Range (rad) of the tip angle at first contact (:class:`vision.rendering.ContactPolicy`).
+        Range (rad) of the tip angle at first contact (:class:`tympani.vision.rendering.ContactPolicy`).
     lag : tuple of float
         Range (dimensionless, 0–1) of the fraction of the tip's advance the contact start follows.
     paired : bool

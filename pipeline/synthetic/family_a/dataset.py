@@ -111,7 +111,7 @@ def synthetic_dataset(
     variability : Variability
         Trial-to-trial variability.
     params : FrictionParams, optional
-        Base model (default: the paper's S4 with linear pressure laws, :func:`pipeline.model.paper.paper_params`).
+        Base model (default: the paper's S4 with linear pressure laws, :func:`tympani.pipeline.model.paper.paper_params`).
     effect_params : mapping, optional
         Effect parameters replacing the drawn ones.
     phantom : Phantom

@@ -194,7 +194,7 @@ class HiddenEffect:
     form : str
         The generator's functional form.
     library_form : str
-        The library form (:mod:`pipeline.model.effects`) it differs from.
+        The library form (:mod:`tympani.pipeline.model.effects`) it differs from.
     ranges : mapping
         Physically plausible range of each parameter (units in the names).
     draw : callable

@@ -111,7 +111,7 @@ def kinematics_table(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """True angles (docs/file-formats.md) against insertion depth for one contact policy (memoised).
 
-    A vectorised twin of :func:`vision.rendering.pose_at_depth`: for a grid of tip angles the
+    A vectorised twin of :func:`tympani.vision.rendering.pose_at_depth`: for a grid of tip angles the
     array's centreline is the renderer's normal offset of the backbone (contact run on the outer
     wall, smooth departure, settling at ``far_offset``, blend into the insertion axis), its
     length from the tip to ``theta_start`` is the depth, and the contact start is where the gap

@@ -1,7 +1,7 @@
 """The truth of a family-A experiment: typed records of what the diagnosis never sees.
 
 :func:`effect_truth` measures a hidden effect against the noise (:class:`EffectTruth`);
-:func:`pipeline.synthetic.family_a.dataset.synthetic_dataset` extends it with the experiment's
+:func:`tympani.pipeline.synthetic.family_a.dataset.synthetic_dataset` extends it with the experiment's
 configuration, trials and tables (:class:`DatasetTruth`). ``to_json()`` gives the JSON object
 written as ``truth/effect.json``.
 """
@@ -88,7 +88,7 @@ class EffectTruth:
     kind : {"physical", "sensor"} or None
         Acts on the force at the contact, or on the sensed signal.
     base_params : mapping
-        The base model's flat parameters (:func:`pipeline.model.friction.flat_params`).
+        The base model's flat parameters (:func:`tympani.pipeline.model.friction.flat_params`).
     gap_rms_g, gap_mean_g, gap_max_g : float
         RMS, mean and largest magnitude (g) of the noiseless force with minus without the effect.
     noise_rms_g : float
@@ -142,7 +142,7 @@ class TrialRecord:
     Parameters
     ----------
     trial : str
-        Trial name (:func:`pipeline.synthetic.family_a.dataset.trial_name`).
+        Trial name (:func:`tympani.pipeline.synthetic.family_a.dataset.trial_name`).
     speed_mm_s, actual_speed_mm_s : float
         Nominal and actual insertion speed (mm/s).
     pressure_scale : float
@@ -160,7 +160,7 @@ class TrialRecord:
     lag : float
         Fraction (dimensionless) of the tip's advance the contact start follows.
     shape : mapping
-        The contact policy's shape (:class:`vision.rendering.ContactPolicy`), field by field.
+        The contact policy's shape (:class:`tympani.vision.rendering.ContactPolicy`), field by field.
     """
 
     trial: str
@@ -195,7 +195,7 @@ class TruthTables:
 
 @dataclass(frozen=True)
 class PaperDrops:
-    """Peak-force changes of a paper case (:func:`pipeline.synthetic.family_a.paper.peak_force_drop` tables).
+    """Peak-force changes of a paper case (:func:`tympani.pipeline.synthetic.family_a.paper.peak_force_drop` tables).
 
     Parameters
     ----------
@@ -237,7 +237,7 @@ class DatasetTruth(EffectTruth):
     tables : TruthTables
         Per-frame angles and noiseless forces (not in the JSON).
     paper : PaperDrops or None
-        Peak-force changes of a paper case (:func:`pipeline.synthetic.family_a.paper.paper_case`).
+        Peak-force changes of a paper case (:func:`tympani.pipeline.synthetic.family_a.paper.paper_case`).
 
     The other parameters are those of :class:`EffectTruth`.
     """
@@ -282,7 +282,7 @@ def unabsorbed_gap(clean: pd.DataFrame, params: FrictionParams, phantom: Phantom
     phantom : Phantom
         Geometry.
     arcs : ArcIntegrals, optional
-        :func:`pipeline.model.friction.arc_integrals` of the rows, if already computed.
+        :func:`tympani.pipeline.model.friction.arc_integrals` of the rows, if already computed.
 
     Returns
     -------

@@ -2,7 +2,7 @@
 
 This module is an *independent* generator ("family B"): it was written from a physics brief
 and the project's contract on geometry, angles, the force model and the effect names only,
-without reading the project's own generator (:mod:`pipeline.synthetic.family_a`, "family A") or its
+without reading the project's own generator (:mod:`tympani.pipeline.synthetic.family_a`, "family A") or its
 diagnosis, so the gap diagnosis can be checked on data whose functional forms it was not built
 around. The diagnosis' thresholds were set on family A; family B is where they are reported
 (``tympani evaluate-diagnosis --family B``).

@@ -41,7 +41,7 @@ class Phantom:
     w_max_mm, w_ratio
         Channel-width law ``w = min(w_max_mm, w_ratio * r)`` [mm, -].  ``w`` is the *full*
         width of the channel; each wall lies ``w / 2`` from the backbone (half the
-        channel width each side, as in :mod:`vision.geometry`).
+        channel width each side, as in :mod:`tympani.vision.geometry`).
     entry_mm
         Length of the straight entry channel [mm].
     """

@@ -1,6 +1,6 @@
 """The truth of a family-B experiment: typed records of what the diagnosis never sees.
 
-:func:`pipeline.synthetic.family_b.generator.generate` returns a :class:`GeneratedTruth`;
+:func:`tympani.pipeline.synthetic.family_b.generator.generate` returns a :class:`GeneratedTruth`;
 ``to_json()`` gives its JSON object (plain Python numbers, lists and dicts).
 """
 
