@@ -51,6 +51,12 @@ _MIN_WIDENING_PX = 1.5
 _MIN_WIDENING_EXPLAINED = 0.4
 # Half widths (px) of the wall lines tried by :func:`_surface_grid` (< 0: bright lines).
 _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
+# Motion blur along the shift smears each wall into two ridges that pass for two copies: the walls
+# whose normal lies along the shift then have weaker edges than those across it, at both ridges.
+# Below this ratio of their median peak gradients (the larger of the two copies') the copies are
+# taken for a blurred single wall (renderer C: blurred 0.32-0.41; doubled walls 0.52-1.55, ours
+# 0.80-1.02).
+_MAX_BLUR_RATIO = 0.45
 
 
 @dataclass(frozen=True)
@@ -627,6 +633,44 @@ def _copy_starts(
     return starts
 
 
+def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift: np.ndarray,
+                reach_px: float = 6.0) -> float:
+    """How much weaker the walls' edges are along ``shift`` than across it, at one copy.
+
+    Parameters
+    ----------
+    magnitude : ndarray
+        Gradient magnitude of the frame.
+    pose : CameraPose
+        The copy's pose.
+    model : WallModel
+        The walls.
+    shift : ndarray, shape (2,)
+        The offset (px) between the copies.
+    reach_px : float
+        Half length (px) of the profile along each wall normal in which the peak is taken.
+
+    Returns
+    -------
+    float
+        Median peak gradient at walls whose normal is within about 30° of the shift, over that at
+        walls within about 17° of perpendicular to it (dimensionless); 1 with fewer than 20
+        walls of either.
+    """
+    sub = model.subsample(1.0 / pose.px_per_mm)
+    pts, nrm = image_points(pose, sub)
+    seen = visible(pts, magnitude.shape)
+    pts, nrm = pts[seen], nrm[seen]
+    t = np.arange(-reach_px, reach_px + 1e-9, 0.5)
+    field = np.dstack([magnitude.astype(np.float32)] * 2)
+    peak = profiles(field, pts, nrm, t)[..., 0].max(axis=1)
+    along = np.abs(nrm @ (shift / max(float(np.hypot(*shift)), 1e-9)))
+    hi, lo = peak[along > 0.85], peak[along < 0.3]
+    if len(hi) < 20 or len(lo) < 20:
+        return 1.0
+    return float(np.median(hi) / max(float(np.median(lo)), 1e-9))
+
+
 def doubled_walls(
     edges: Edges,
     layers: np.ndarray,
@@ -645,7 +689,8 @@ def doubled_walls(
     (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
     the spiral's valley when that fits better (:func:`valley_scan`), and its copies named
     so that the first is the one with the stronger edges; copies closer than
-    :data:`_MIN_PARALLAX_MM` are taken for single walls. Returns the copies and the second
+    :data:`_MIN_PARALLAX_MM`, or that are the two ridges of a wall blurred along the shift
+    (:func:`_blur_ratio`), are taken for single walls. Returns the copies and the second
     copy's relative contrast (:func:`_copy_contrast`).
     """
     coarse = model.subsample(4.0 / pose.px_per_mm)
@@ -672,6 +717,11 @@ def doubled_walls(
     support = _copy_support(copies, layers, fine, classes)
     least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
     if not (support.second_is_real and math.hypot(*copies.shift) >= least):
+        return None
+    shift = np.asarray(copies.shift)
+    magnitude = edges.edge_map.magnitude
+    if max(_blur_ratio(magnitude, copies.pose, model, shift),
+           _blur_ratio(magnitude, _translated(copies.pose, shift), model, shift)) < _MAX_BLUR_RATIO:
         return None
     contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
     if contrast > 1.0:
