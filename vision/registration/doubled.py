@@ -662,8 +662,7 @@ def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift
     seen = visible(pts, magnitude.shape)
     pts, nrm = pts[seen], nrm[seen]
     t = np.arange(-reach_px, reach_px + 1e-9, 0.5)
-    field = np.dstack([magnitude.astype(np.float32)] * 2)
-    peak = profiles(field, pts, nrm, t)[..., 0].max(axis=1)
+    peak = profiles(magnitude, pts, nrm, t).max(axis=1)
     along = np.abs(nrm @ (shift / max(float(np.hypot(*shift)), 1e-9)))
     hi, lo = peak[along > 0.85], peak[along < 0.3]
     if len(hi) < 20 or len(lo) < 20:

@@ -23,9 +23,10 @@ FIELD_BLUR_VAR = 0.7**2 + 2.0 / 6.0
 
 
 def profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a 2-channel field along each point's normal at offsets ``t`` (px).
+    """Bilinear samples of a field along each point's normal at offsets ``t`` (px).
 
-    Returns an ``(n, len(t), 2)`` float32 array (zero outside the image).
+    Returns an ``(n, len(t))`` float32 array for a one-channel field, ``(n, len(t), 2)`` for a
+    two-channel one (zero outside the image).
     """
     shape = (len(pts), len(t))
     # pts + t * nrm summed in float64 and rounded once to float32 (the maps remap takes)
