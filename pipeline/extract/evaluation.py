@@ -28,6 +28,7 @@ from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.video import extract_video
 from tympani.pipeline.io import atomic_write_csv
 from tympani.pipeline.synthetic.renderer_c import NUISANCE_KEYS, render_video
+from tympani.vision.errors import InputError, one_line
 
 #: How the nuisances of a video are drawn: none; each off with probability 0.3, else of strength
 #: U(0.1, 1); every one at U(0.3, 1) with bubbles at U(0.5, 1) and doubled walls in 60 % of videos.
@@ -113,6 +114,12 @@ def _median(x: pd.Series) -> float:
     return float(x.median()) if len(x) else float("nan")
 
 
+def _video_fields(case: VideoCase, pose: dict) -> dict:
+    """The :class:`VideoScore` fields that describe the video rather than score it."""
+    return dict(seed=case.seed, width_px=case.size[0], px_per_mm=round(float(pose["px_per_mm"]), 2),
+                doubled_walls=case.nuisance.get("doubled_walls", 0.0), bubbles=case.nuisance.get("bubbles", 0.0))
+
+
 def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose: dict, registration_pose,
                 cfg: EvaluationConfig) -> tuple[VideoScore, pd.DataFrame]:
     """Score an extracted angles table against the renderer's truth.
@@ -146,8 +153,7 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
     tip, bot, con = ((m[c] - m[f"{c}_t"]).abs() for c in ("theta_tip", "theta_bot", "theta_con"))
     gross = ok & ((tip > cfg.gross_tip_rad) | (con > cfg.gross_con_rad))
     score = VideoScore(
-        seed=case.seed, width_px=case.size[0], px_per_mm=round(float(pose["px_per_mm"]), 2),
-        doubled_walls=case.nuisance.get("doubled_walls", 0.0), bubbles=case.nuisance.get("bubbles", 0.0),
+        **_video_fields(case, pose),
         frames=len(m), measured=int(ok.sum()), contact_frames=int(contact.sum()),
         gross_contact=int((gross & contact).sum()), gross=int(gross.sum()),
         tip_median_rad=_median(tip[ok]), bot_median_rad=_median(bot[ok]), con_median_rad=_median(con[ok & contact]),
@@ -173,12 +179,12 @@ def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig 
     pose = info["pose"]
     try:
         table, registration = extract_video(path, ExtractConfig(), fps=30.0)
-    except Exception as exc:  # a refusal of the whole video is a result too
-        n = len(truth)
-        return VideoScore(seed, case.size[0], round(float(pose["px_per_mm"]), 2),
-                          case.nuisance.get("doubled_walls", 0.0), case.nuisance.get("bubbles", 0.0), n, 0,
-                          int(truth["in_contact"].astype(bool).sum()), 0, 0, *([float("nan")] * 5), False, "",
-                          error=" ".join(str(exc).split())[:200])
+    except InputError as exc:  # a refusal of the whole video (no phantom found) is a result too
+        nan = float("nan")
+        return VideoScore(**_video_fields(case, pose), frames=len(truth), measured=0,
+                          contact_frames=int(truth["in_contact"].astype(bool).sum()), gross_contact=0, gross=0,
+                          tip_median_rad=nan, bot_median_rad=nan, con_median_rad=nan, centre_error_px=nan,
+                          scale_error_pct=nan, mirror_ok=False, reasons="", error=one_line(exc)[:200])
     score, frames = score_video(case, table, truth, pose, registration.pose, cfg)
     atomic_write_csv(out / f"v{seed}_frames.csv", frames)
     return score
