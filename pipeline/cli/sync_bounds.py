@@ -135,13 +135,14 @@ def _simulated(args: argparse.Namespace):
         import pandas as pd
 
         from tympani.pipeline.force.forcelog import read_csv_columns
+        from tympani.pipeline.force.sync import SYNC_NUMBER_COLUMNS
         from tympani.vision.errors import InputError
 
         path = Path(args.simulated)
         if not path.is_file():
             raise InputError(path, "no such simulation table")
-        numeric = {"speed_mm_s", "time_s", "depth_mm", "theta_tip", "theta_bot", "theta_con", "force_g"}
-        read = read_csv_columns(path, lambda header: {c: "number" if c in numeric else "text" for c in header.columns})
+        read = read_csv_columns(path, lambda header: {c: "number" if c in SYNC_NUMBER_COLUMNS else "text"
+                                                      for c in header.columns})
         table = pd.DataFrame(read.values)
         missing = [c for c in ("speed_mm_s", "theta_con", "force_g") if c not in table.columns]
         if missing:
