@@ -57,3 +57,13 @@ def test_a_clean_video_end_to_end(tmp_path):
     assert summary["tip_median_rad"] < 0.006 and summary["con_median_rad"] < 0.04
     assert summary["centre_error_max_px"] < 0.05 and summary["scale_error_max_pct"] < 0.1
     assert {p.name for p in tmp_path.iterdir()} >= {"v200.mp4", "v200_truth.csv", "v200_frames.csv"}
+
+
+def test_an_output_folder_that_cannot_be_made_is_a_one_line_error(tmp_path, capsys):
+    from tympani.pipeline.cli import main
+
+    blocker = tmp_path / "taken"
+    blocker.write_text("a file, not a folder", encoding="utf-8")
+    assert main(["evaluate-extraction", "--videos", "1", "--out", str(blocker / "eval"), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"tympani: {blocker / 'eval'}: cannot create the output folder") and "\n" not in err

@@ -26,7 +26,7 @@ import pandas as pd
 
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.video import extract_video
-from tympani.pipeline.io import atomic_write_csv
+from tympani.pipeline.io import atomic_write_csv, check_writable_dir
 from tympani.pipeline.synthetic.renderer_c import NUISANCE_KEYS, render_video
 from tympani.vision.errors import InputError, one_line
 
@@ -197,7 +197,7 @@ def _evaluate_one(args: tuple[int, str, EvaluationConfig]) -> VideoScore:
 def evaluate_extraction(seeds: range | list[int], out_dir: str | os.PathLike,
                         cfg: EvaluationConfig = EvaluationConfig(), *, workers: int = 1) -> pd.DataFrame:
     """:func:`evaluate_video` of every seed (in ``workers`` processes), one row a video."""
-    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    check_writable_dir(out_dir)
     jobs = [(int(s), str(out_dir), cfg) for s in seeds]
     if workers <= 1:
         scores = [_evaluate_one(j) for j in jobs]
