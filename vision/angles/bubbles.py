@@ -21,6 +21,17 @@ def _dark_runs(dark: np.ndarray) -> np.ndarray:
     return np.where(dark, at - last_false, 0)
 
 
+def _dark_beyond(path: np.ndarray, skip: int) -> int:
+    """Length (stations) of the dark stretch of ``path`` (bool, from just beyond a bright
+    component on) that starts within its first ``skip`` stations: the rim beyond a bubble's
+    interior, or the array's body beyond a band, whose lighter border can outlast the bright
+    component itself; 0 when none starts there."""
+    if not path[:skip].any():
+        return 0
+    first = int(np.argmax(path))
+    return int(np.argmin(np.append(path[first:], False)))
+
+
 def _compact(x: np.ndarray, y: np.ndarray, w: np.ndarray, h: np.ndarray, area: np.ndarray, m: int,
              n: np.ndarray | int, step_mm: float, offset_mm: np.ndarray | float, cfg: MeasureConfig) -> np.ndarray:
     """Which bright components could be a bubble's interior: enclosed in their window (``m``
@@ -146,7 +157,7 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         reach = max(int(round(0.25 * diameter_mm / offset_mm)), 0)  # rows within a quarter diameter of it
         rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
         path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
-        far = int(np.argmin(np.append(path[x[k] + w[k]:], False)))  # the rim beyond the interior
+        far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
         if wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm:
             continue  # as narrow as a band, and array beyond it
         # the rim before it, and any array it touches: the longest dark run that ends where the

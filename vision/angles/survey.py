@@ -148,6 +148,23 @@ def _array_ratios(
     return np.where(beside.sum(axis=1) < max(min_count, 3), np.nan, rho)
 
 
+def _array_ratio_low(
+    darkest: np.ndarray, brightest: np.ndarray, steepest: np.ndarray, fluid: np.ndarray, in_view: np.ndarray,
+    entry: np.ndarray, min_count: int,
+) -> np.ndarray:
+    """The lower of :func:`_array_ratios` over all stations in view and over the entry channel's
+    (``entry``, shape (n,), bool), where the array lies once inserted.
+
+    Shadows and shading across the fluid beyond the tip pass the same side-by-side test, and
+    where they outnumber the array's stations they raise the whole channel's quantile towards
+    their own ratio (then the shading reads as more array); the entry's stations are the
+    array's, but where its thick base fills the entry they see too little fluid beside it and
+    read high. Too low a ratio only asks more contrast of the array's body, which it has.
+    """
+    every = _array_ratios(darkest, brightest, steepest, fluid, in_view, min_count)
+    return np.fmin(every, _array_ratios(darkest, brightest, steepest, fluid, entry, min_count))
+
+
 def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
     """Per row (frame) of ``dark``, shape (B, n), the last station of
     the dark run that starts at the first dark probe station, bridging gaps up to ``max_gap``
@@ -205,13 +222,14 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     min_beside = int(np.ceil(cfg.beside_mm / (sa * step)))
     views = np.broadcast_to(view_c, brightest.shape)
     fluid_c = _fluid_levels(brightest, views, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
-    rho1 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    entry_c = view_c & (np.arange(len(view_c)) * sa < plan.i_start)
+    rho1 = _array_ratio_low(darkest, brightest, steepest, fluid_c, view_c, entry_c, min_beside)
     rho = rho1[:, None]
     contrast_c = fluid_c * (1.0 - rho)
     body = (fluid_c - darkest) / contrast_c >= cfg.body_level
     trusted = view_c & (erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
     fluid_c = _fluid_levels(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
-    rho2 = _array_ratios(darkest, brightest, steepest, fluid_c, view_c, min_beside)
+    rho2 = _array_ratio_low(darkest, brightest, steepest, fluid_c, view_c, entry_c, min_beside)
     contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
     dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
     tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step)).tolist()
