@@ -134,8 +134,10 @@ class Registration:
     walls_doubled : bool
         Whether every wall showed twice, the second copy shifted by one image vector
         (``parallax_px``): the top and bottom edges of a thick plate's walls seen at an angle
-        (see docs/how-it-works.md). ``pose`` is then that of the *first copy*, the one
-        with the stronger edges (the second copy is a fainter replica), and the residual,
+        (see docs/how-it-works.md). ``pose`` is then that of the *first copy*: the one whose
+        insertion axis the straight array outside the entry lies on, where the array shows and
+        the copies' axes are far enough apart to tell, else the one with the stronger edges;
+        the residual,
         inlier and check statistics count an edge of either copy. The copies are told apart
         where they are resolved: about 1 px for wall lines (the union of two overlapping
         lines is fitted as such) and 2.5 px for region boundaries, whose two steps merge into
@@ -147,8 +149,9 @@ class Registration:
         closer than their width) it is measured from the union's outer edges, which can read
         up to about a third short.
     second_copy_contrast : float
-        Edge strength of the second copy relative to the first (0–1, the ratio of median
-        gradient magnitudes at edges of the two copies); NaN when the walls are single or
+        Edge strength of the second copy relative to the first (the ratio of median gradient
+        magnitudes at edges of the two copies; below 1 unless the array chose the fainter copy
+        as the wall); NaN when the walls are single or
         where the copies were never resolved.
     """
 

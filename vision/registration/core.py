@@ -18,6 +18,7 @@ from tympani.vision.registration.config import (
     RegistrationError,
     search_range,
 )
+from tympani.vision.registration.axis import second_copy_is_the_wall
 from tympani.vision.registration.doubled import doubled_walls
 from tympani.vision.registration.frames import (
     Edges,
@@ -149,10 +150,15 @@ def register(
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
     pose, half_width, fit = best
-    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad)
+    def on_second_axis(first: CameraPose, shift: tuple[float, float]) -> bool:
+        return second_copy_is_the_wall(gray, first, shift, phantom)
+
+    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, on_second_axis)
     shift, contrast = (0.0, 0.0), float("nan")
     if doubled is not None:
         copies, contrast = doubled
+        if on_second_axis(copies.pose, copies.shift):
+            copies, contrast = copies.swapped(), 1.0 / contrast
         pose, half_width, shift = copies.pose, copies.half_width, copies.shift
         sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
         fit = wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, np.asarray(shift))

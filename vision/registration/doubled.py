@@ -6,6 +6,7 @@ together, and kept only when the second copy's edges are found."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -678,13 +679,16 @@ def doubled_walls(
     model: WallModel,
     cfg: RegistrationConfig,
     b_per_rad: float,
+    on_second_axis: Callable[[CameraPose, tuple[float, float]], bool] | None = None,
 ) -> tuple[_Copies, float] | None:
     """Doubled walls near a single-copy fit, or None when the walls are single.
 
     Every start of :func:`_copy_starts` is refined on walls 4 px apart. Of those whose
     second copy is real (:attr:`_Support.second_is_real`) and whose first copy lies on edges
     nearly as often as the single copy did (:attr:`_Support.first_rate`, at least 85 % of
-    it: a shift onto another turn's walls can pass the first test), the best supported
+    it: a shift onto another turn's walls can pass the first test; or, given
+    ``on_second_axis(pose, shift)``, where it says the array lies on the second copy's insertion
+    axis: the single fit then sat on a copy that is not the wall), the best supported
     (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
     the spiral's valley when that fits better (:func:`valley_scan`), and its copies named
     so that the first is the one with the stronger edges; copies closer than
@@ -701,7 +705,8 @@ def doubled_walls(
     for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg):
         copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
         support = _copy_support(copies, layers, coarse, classes)
-        plausible = support.second_is_real and support.first_rate >= 0.85 * single.first_rate
+        plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
+            on_second_axis is not None and on_second_axis(copies.pose, copies.shift)))
         if plausible and (best is None or support.score > best[0]):
             best = (support.score, copies)
     if best is None:
