@@ -93,3 +93,25 @@ def test_tolerance_widens_with_the_frames_own_scatter() -> None:
     runs, _ = flag_kinematics(rows, KinematicsConfig())
     assert sum(u["frames"] for u in runs) <= 1
     assert fit_insertion(t, d).tol_mm == pytest.approx(5 * 0.3, rel=0.2)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_steady_misreading_of_many_frames_is_not_averaged_into_the_line(seed: int) -> None:
+    """A bubble carried ahead of the tip is read as array in 35-45 % of the frames, scattered
+    through the video, each 1.0-1.5 mm too deep (as on renderer C's harsh seed 404): the line
+    between the two groups holds most frames within 0.5 mm, but the one through the right frames
+    holds them nearer. The speed is found within 2 % and every misread frame, and no other, is
+    marked (measured: speed within 1.2 %; before: up to 10 % off, misread frames kept)."""
+    rng = np.random.default_rng(300 + seed)
+    n = 30
+    t = np.arange(n) / 30.0
+    speed = float(rng.uniform(3.0, 20.0))
+    d = 2.0 + speed * t + rng.normal(0.0, 0.05, n)
+    bad = np.zeros(n, dtype=bool)
+    bad[rng.choice(np.arange(3, n), size=int(rng.uniform(0.35, 0.45) * n), replace=False)] = True
+    d[bad] += rng.uniform(1.0, 1.5, bad.sum())
+    fit = fit_insertion(t, d)
+    assert abs(fit.speed_mm_s / speed - 1) < 0.02, (fit.speed_mm_s, speed)
+    rows = _rows(t, d)
+    flag_kinematics(rows)
+    assert np.array_equal(np.array([not r["ok"] for r in rows]), bad)

@@ -86,9 +86,9 @@ def insertion_depth(fit: InsertionFit, time_s: np.ndarray) -> np.ndarray:
 
 
 def _consensus_line(t: np.ndarray, d: np.ndarray, tol: float, pairs: int) -> tuple[float, float]:
-    """The line ``d0 + v t`` (v >= 0) through two frames that holds most frames within ``tol``
-    (mm), once clipped to the depths it passes; drawn from a fixed seed so that a video always
-    gives the same line."""
+    """The line ``d0 + v t`` (v >= 0) through two frames with the most support, once clipped to
+    the depths it passes: each frame within ``tol`` (mm) counts ``1 - (r / tol)^2`` for its
+    distance ``r``; drawn from a fixed seed so that a video always gives the same line."""
     rng = np.random.default_rng(0)
     n = len(t)
     i, j = rng.integers(0, n, size=(2, pairs))
@@ -101,8 +101,12 @@ def _consensus_line(t: np.ndarray, d: np.ndarray, tol: float, pairs: int) -> tup
     line = d0[:, None] + v[:, None] * t[None, :]
     lo_all = np.minimum(lo, np.quantile(d, 0.05))[:, None]
     hi_all = np.maximum(hi, np.quantile(d, 0.95))[:, None]
-    inliers = (np.abs(np.clip(line, lo_all, hi_all) - d[None, :]) <= tol).sum(axis=1)
-    best = int(np.argmax(inliers)) if len(inliers) else -1
+    # frames count by how near they lie (1 on the line, 0 at tol and beyond): a line between two
+    # parallel groups of frames (a bubble carried ahead of the tip misreads every other frame by a
+    # steady millimetre) holds both within tol but neither near it
+    r = (np.clip(line, lo_all, hi_all) - d[None, :]) / tol
+    support = np.maximum(1.0 - r * r, 0.0).sum(axis=1)
+    best = int(np.argmax(support)) if len(support) else -1
     if best < 0:
         return float(np.median(d)), 0.0
     return float(d0[best]), float(v[best])
