@@ -194,7 +194,7 @@ class MeasureConfig:
     bubble_bright: float = 0.3
     bubble_min_mm2: float = 0.02
     bubble_max_mm: float = 0.9
-    bubble_fill: tuple[float, float] = (0.5, 0.86)
+    bubble_fill: tuple[float, float] = (0.5, 0.9)
     bubble_aspect: float = 2.5
     bubble_wider: float = 1.15
     bubble_rim_mm: float = 0.2
