@@ -517,7 +517,9 @@ def test_sensitivity_to_registration_error() -> None:
     """The pose off by 0.5 px, 0.3 deg and 0.5 % scale (6 frames, 17–35 px/mm). When written:
     theta_tip median |error| 0.0023 rad (max 0.011) against 0.0004 with the true pose;
     theta_bot median 0.049 rad (max 0.14) against 0.021. The contact tolerance (0.05 mm) is
-    under a pixel, and such a registration error moves the walls by a good part of it."""
+    under a pixel, and such a registration error moves the walls by a good part of it. The frame at
+    17 px/mm, whose array leaves the wall gradually, is refused with either pose: its contact run
+    reaches 1.0-1.5 rad further with the gaps 2 px narrower ("contact start unclear")."""
     rng = np.random.default_rng(5)
     tip_err, bot_err, bot_true = [], [], []
     for k in range(6):
@@ -533,10 +535,14 @@ def test_sensitivity_to_registration_error() -> None:
             px_per_mm=pose.px_per_mm * (1.005 if k % 3 else 0.995),
         )
         m = measure_frame(frame, _reg(wrong))
+        if not m.ok and pose.px_per_mm < 20:
+            assert m.reason.startswith("contact start unclear"), m.reason
+            continue
         assert m.ok, m.reason
         tip_err.append(abs(m.theta_tip - state.truth.theta_tip))
         bot_err.append(abs(m.theta_bot - state.truth.theta_bot))
         bot_true.append(abs(measure_frame(frame, _reg(pose)).theta_bot - state.truth.theta_bot))
+    assert len(tip_err) >= 5
     assert np.median(tip_err) <= 0.02
     assert np.median(bot_err) <= 0.15
     assert np.median(bot_err) >= np.median(bot_true)  # the error does cost accuracy

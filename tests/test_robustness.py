@@ -335,7 +335,8 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
     one-line warning, the ratio in the registration JSON), and with --array-diameters the gaps
     come right. Here the contact rule's allowance for a gap bias (up to 0.1 mm) absorbs most of
     the error: measured theta_bot median error 0.054 rad without the diameters, 0.038 with
-    (without the allowance: 0.66 rad)."""
+    (without the allowance: 0.66 rad); without them two of the 30 frames are refused, their contact
+    start unclear (it moves 0.9 and 1.1 rad with the gaps 2 px narrower)."""
     from dataclasses import replace
 
     from tympani.vision.geometry import DEFAULT_ARRAY, CameraPose
@@ -362,7 +363,11 @@ def test_array_of_another_size_is_flagged_and_can_be_given(tmp_path, capsys):
         assert record["frames"] >= 25
         ratio[name] = record["median"]
         table = pd.read_csv(tmp_path / name / "wide.angles.csv").merge(truth, on="frame", suffixes=("", "_true"))
-        assert table["ok"].all()
+        if name == "given":
+            assert table["ok"].all()
+        else:  # biased gaps leave a contact start or two unclear
+            assert table["ok"].sum() >= 27
+            assert table.loc[~table["ok"], "reason"].str.startswith("contact start unclear").all()
         bot_error[name] = float((table["theta_bot"] - table["theta_bot_true"]).abs().median())
     assert 1.12 < ratio["modelled"] < 1.22 and 0.97 < ratio["given"] < 1.06  # measured 1.171 and 1.016
     assert bot_error["given"] < 0.08 and bot_error["modelled"] < 0.11

@@ -172,6 +172,10 @@ def _runs(index: np.ndarray) -> list[tuple[int, int]]:
 def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()) -> tuple[list[dict], str]:
     """Mark the measured frames whose depth is off the video's constant-speed insertion, in place.
 
+    The insertion is fitted (:func:`fit_insertion`) to every row with a finite ``depth_mm``,
+    measured or not (a frame refused for an unclear contact start still has its tip and depth),
+    and only measured rows are marked.
+
     Parameters
     ----------
     rows : list of dict
@@ -190,20 +194,24 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
     note : str
         What the check found, or why it did not run ("" when it ran and marked nothing).
     """
-    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"])
-          if rows[i]["ok"] and np.isfinite(float(rows[i].get("depth_mm", math.nan) or math.nan))]
-    if len(ok) < cfg.min_frames:
+    order = sorted(range(len(rows)), key=lambda i: rows[i]["frame"])
+    seen = [i for i in order if np.isfinite(float(rows[i].get("depth_mm", math.nan) or math.nan))]
+    ok = [i for i in seen if rows[i]["ok"]]
+    if len(seen) < cfg.min_frames:
+        return [], ""
+    # the insertion is fitted to every frame whose depth was measured, the ones refused for
+    # their contact start too (their tip was found), and checked on the measured ones
+    fit = fit_insertion(np.array([float(rows[i]["time_s"]) for i in seen]),
+                        np.array([float(rows[i]["depth_mm"]) for i in seen]), cfg)
+    if fit is None or not ok:
         return [], ""
     t = np.array([float(rows[i]["time_s"]) for i in ok])
     d = np.array([float(rows[i]["depth_mm"]) for i in ok])
-    fit = fit_insertion(t, d, cfg)
-    if fit is None:
-        return [], ""
     r = d - insertion_depth(fit, t)
     if fit.share < cfg.min_share:  # no insertion to check against: every frame is in doubt
         off = np.arange(len(ok))
         why = (f"the measured depths follow no constant-speed insertion (at most {100 * fit.share:.0f} % "
-               f"of the {len(ok)} measured frames lie on one)")
+               f"of the {len(seen)} frames with a depth lie on one)")
     else:
         off = np.flatnonzero(np.abs(r) > fit.tol_mm)
         why = ""

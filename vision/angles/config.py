@@ -36,6 +36,15 @@ class MeasureConfig:
         ``contact_tol_mm + contact_excess_mm`` exceeds ``contact_tol_mm / 2``, the excess (up
         to this much) is taken as bias and added to the tolerance. (With gaps read without
         bias, touching stretches have a median gap well under half the tolerance.)
+    gap_resolution_px : float
+        How finely (px) the gap to the wall is told apart. The contact run is found again with
+        the tolerance raised by this much; a frame whose contact run then starts more than
+        ``contact_swing_rad`` (rad) further back is not measured ("contact start unclear"): the
+        array runs along the wall at about the tolerance, and whether (or from where) it touches
+        cannot be told at this resolution. A frame read as not touching whose tip would touch
+        is one of these.
+    contact_swing_rad : float
+        See ``gap_resolution_px``.
     station_step_px : float
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float
@@ -170,6 +179,8 @@ class MeasureConfig:
     contact_persist_mm: float = 0.5
     contact_excess_mm: float = 0.1
     contact_bias_mm: float = 0.1
+    gap_resolution_px: float = 2.0
+    contact_swing_rad: float = 0.6
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
     min_step_mm: float = 0.03

@@ -5,11 +5,87 @@ from __future__ import annotations
 import numpy as np
 
 from tympani.vision.angles.centreline import CentreLine
-from tympani.vision.angles.config import FrameMeasurement
+from tympani.vision.angles.config import FrameMeasurement, MeasureConfig, failure
 from tympani.vision.angles.definitions import spiral_angle
 from tympani.vision.angles.edges import Edges
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import Ragged
+
+
+def contact_tolerance(gaps: np.ndarray, cl: Ragged, cfg: MeasureConfig) -> np.ndarray:
+    """The contact tolerance (mm) at each centre-line point: ``cfg.contact_tol_mm`` raised by any
+    bias of its frame's measured gaps (:attr:`MeasureConfig.contact_bias_mm`): the lower median
+    gap of the stretch from the tip before the first gap over ``contact_tol_mm +
+    contact_excess_mm``, less half the tolerance.
+
+    Parameters
+    ----------
+    gaps : ndarray
+        Gap (mm) to the outer wall at each point, the frames' points laid end to end (``cl``),
+        tip first.
+    cl : Ragged
+        The frames' points.
+    cfg : MeasureConfig
+        Settings.
+    """
+    hard = np.where(gaps > cfg.contact_tol_mm + cfg.contact_excess_mm, cl.local, cl.n[cl.row])
+    stretch = cl.local < np.minimum.reduceat(hard, cl.start)[cl.row]
+    counts = cl.count(stretch)
+    ranked = np.sort(cl.pad(np.where(stretch, gaps, np.inf), np.inf), axis=1)  # each frame's stretch, ascending
+    median = ranked[np.arange(len(counts)), np.maximum(counts - 1, 0) // 2]  # the lower median
+    bias = np.where(counts > 0, np.clip(median - 0.5 * cfg.contact_tol_mm, 0.0, cfg.contact_bias_mm), 0.0)
+    return (cfg.contact_tol_mm + bias)[cl.row]
+
+
+def contact_run(gaps: np.ndarray, tol: np.ndarray | float, cl: Ragged, cfg: MeasureConfig
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The contact run from the tip of each frame (:func:`contact_angles`' rule, all frames at once).
+
+    The run ends where the gap first exceeds the tolerance, but not at a blip of measurement
+    noise: an excursion shorter than ``cfg.contact_persist_mm``, by less than
+    ``cfg.contact_excess_mm``, after which contact holds again for as long (a real departure from
+    the wall widens steadily).
+
+    Parameters
+    ----------
+    gaps : ndarray
+        Gap (mm) at each point, the frames' points laid end to end (``cl``), tip first.
+    tol : ndarray or float
+        Tolerance (mm) at each point.
+    cl : Ragged
+        The frames' points.
+    cfg : MeasureConfig
+        Settings.
+
+    Returns
+    -------
+    contact : ndarray of bool
+        Whether each frame's tip touches.
+    i0, i1 : ndarray of int
+        Positions of the run's last point and of the next one.
+    frac : ndarray
+        Where between them the gap reaches the tolerance (0-1).
+    """
+    tol = np.broadcast_to(tol, gaps.shape)
+    touching = gaps <= tol
+    pos = np.arange(len(gaps))
+    end = (cl.start + cl.n)[cl.row]
+    # the next touching / non-touching point of each point's frame, or the frame's end (a later
+    # frame's points all lie at or beyond this frame's end, so the running minimum stays in it)
+    next_touch = np.minimum.accumulate(np.where(touching, pos, end)[::-1])[::-1]
+    next_away = np.minimum.accumulate(np.where(~touching, pos, end)[::-1])[::-1]
+    persist = int(np.ceil(cfg.contact_persist_mm / cfg.angle_step_mm))
+    resumes = next_away[np.minimum(next_touch, len(gaps) - 1)] - next_touch >= persist
+    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= tol + cfg.contact_excess_mm)
+    away = np.where(~touching & ~blip, cl.local, cl.n[cl.row])
+    out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
+    i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
+    i0 = cl.start + np.maximum(i_last, 0)
+    i1 = cl.start + np.minimum(i_last + 1, cl.n - 1)
+    g0, g1 = gaps[i0], gaps[np.minimum(i0 + 1, len(gaps) - 1)]
+    frac = np.where((out_at < cl.n) & (g1 != g0),
+                    np.minimum(np.maximum((tol[i0] - g0) / (g1 - g0), 0.0), 1.0), 0.0)
+    return touching[cl.start], i0, i1, frac
 
 
 def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[str, float]]]
@@ -42,40 +118,16 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     gaps = np.empty(len(cl.row))
     gaps[cl.start], gaps[inner] = gap[at[kept.start]], gap[at]
     theta = spiral_angle(points, plan.angles)
-    # contact_angles' rule: the contact run from the tip ends where the gap first exceeds the
-    # tolerance, but not at a blip of measurement noise: an excursion shorter than
-    # contact_persist_mm, by less than contact_excess_mm, after which contact holds again for
-    # contact_persist_mm (a real departure from the wall widens steadily)
-    # the tolerance, raised by any bias of the measured gaps (MeasureConfig.contact_bias_mm): the
-    # median gap of each frame's stretch before its first gap over tol + excess
-    hard = np.where(gaps > cfg.contact_tol_mm + cfg.contact_excess_mm, cl.local, cl.n[cl.row])
-    stretch = cl.local < np.minimum.reduceat(hard, cl.start)[cl.row]
-    counts = cl.count(stretch)
-    ranked = np.sort(cl.pad(np.where(stretch, gaps, np.inf), np.inf), axis=1)  # each frame's stretch, ascending
-    median = ranked[np.arange(len(counts)), np.maximum(counts - 1, 0) // 2]  # the lower median
-    bias = np.where(counts > 0, np.clip(median - 0.5 * cfg.contact_tol_mm, 0.0, cfg.contact_bias_mm), 0.0)
-    tol = (cfg.contact_tol_mm + bias)[cl.row]
-    touching = gaps <= tol
-    pos = np.arange(len(gaps))
-    end = (cl.start + cl.n)[cl.row]
-    # the next touching / non-touching point of each point's frame, or the frame's end (a later
-    # frame's points all lie at or beyond this frame's end, so the running minimum stays in it)
-    next_touch = np.minimum.accumulate(np.where(touching, pos, end)[::-1])[::-1]
-    next_away = np.minimum.accumulate(np.where(~touching, pos, end)[::-1])[::-1]
-    persist = int(np.ceil(cfg.contact_persist_mm / cfg.angle_step_mm))
-    resumes = next_away[np.minimum(next_touch, len(gaps) - 1)] - next_touch >= persist
-    blip = (next_touch - pos < persist) & (next_touch < end) & resumes & (gaps <= tol + cfg.contact_excess_mm)
-    away = np.where(~touching & ~blip, cl.local, cl.n[cl.row])
-    out_at = np.minimum.reduceat(away, cl.start)  # first point out of contact (n: none)
-    i_last = np.where(out_at < cl.n, out_at - 1, cl.n - 1)
-    i0 = cl.start + np.maximum(i_last, 0)
-    i1 = cl.start + np.minimum(i_last + 1, cl.n - 1)
-    g0, g1 = gaps[i0], gaps[np.minimum(i0 + 1, len(gaps) - 1)]
-    frac = np.where((out_at < cl.n) & (g1 != g0),
-                    np.minimum(np.maximum((tol[i0] - g0) / (g1 - g0), 0.0), 1.0), 0.0)
-    contact = touching[cl.start]
+    # contact_angles' rule, with the tolerance raised by any bias of the measured gaps
+    tol = contact_tolerance(gaps, cl, cfg)
+    contact, i0, i1, frac = contact_run(gaps, tol, cl, cfg)
     theta_tip = theta[cl.start]
     theta_bot = np.where(contact, theta[i0] + frac * (theta[i1] - theta[i0]), theta_tip)
+    # the contact run with the tolerance raised by the gaps' resolution: where it starts much
+    # further back, the array runs along the wall at about the tolerance and where (or whether)
+    # it touches cannot be told at this resolution
+    c2, j0, j1, f2 = contact_run(gaps, tol + cfg.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
+    swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
     bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
     seg = np.diff(points, axis=0)
     seg = np.hypot(seg[:, 0], seg[:, 1])
@@ -96,9 +148,13 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     outline[ol.start[kept.row] + 2 * kept.n[kept.row] - kept.local] = line[at] + side
     results = []
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
-               bot, depth.tolist(), entry.tolist())
-    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry in rows:
+               bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b in rows:
         extras["depth_mm"] = depth_b
+        if swing_b > cfg.contact_swing_rad:
+            results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {cfg.gap_resolution_px:g} "
+                                   "px narrower", **extras))
+            continue
         results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
                                         cl_b, outline_b, gaps_b, extras))
     return results
