@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -88,3 +90,52 @@ def test_shading_across_the_fluid_is_not_taken_for_array() -> None:
     assert all(m.ok for m in got), [m.reason for m in got]
     assert max(abs(m.theta_tip - t) for m, t in zip(got, truth["theta_tip"])) < 0.03
     assert max(abs(m.theta_con - t) for m, t in zip(got, truth["theta_con"])) < 0.1
+
+
+_OTHER_RENDERER = '''
+import json
+from tympani.pipeline.synthetic import renderer_c
+
+NUISANCE_KEYS = ("noise", "glints")
+
+
+def render_video(path, seed, *, n_frames, size, px_per_mm, nuisance):
+    with open(str(path) + ".call.json", "w") as f:
+        json.dump({"seed": seed, "n_frames": n_frames, "size": list(size), "nuisance": nuisance}, f)
+    return renderer_c.render_video(path, seed, n_frames=n_frames, size=size, px_per_mm=px_per_mm, nuisance=nuisance)
+'''
+
+
+def test_another_renderer_given_as_a_file(tmp_path, capsys):
+    """--renderer FILE.py: its own nuisance names are drawn from the seed and passed with the size
+    and frame count; its videos are scored like renderer C's (this one wraps renderer C, so the
+    clean video of seed 200 scores as in the test above)."""
+    from tympani.pipeline.cli import main
+
+    renderer = tmp_path / "other.py"
+    renderer.write_text(_OTHER_RENDERER, encoding="utf-8")
+    out = tmp_path / "eval"
+    assert main(["evaluate-extraction", "--videos", "1", "--seed", "200", "--nuisance", "clean", "--frames", "12",
+                 "--renderer", str(renderer), "--out", str(out), "-q"]) == 0
+    call = json.loads((out / "v200.mp4.call.json").read_text())
+    assert call == {"seed": 200, "n_frames": 12, "size": [640, 480], "nuisance": {"noise": 0.0, "glints": 0.0}}
+    videos = pd.read_csv(out / "videos.csv")
+    assert videos["measured"].tolist() == [12] and videos["gross_contact"].tolist() == [0]
+    assert draw_case(7, "harsh", ("noise", "bubbles")).nuisance.keys() == {"noise", "bubbles"}
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("text, problem", [
+    (None, "no such renderer file"),
+    ("x = 1\n", "the renderer defines no NUISANCE_KEYS and no render_video"),
+    ("raise RuntimeError('boom')\n", "the renderer does not load: RuntimeError: boom"),
+])
+def test_a_renderer_file_that_cannot_be_used_is_a_one_line_error(tmp_path, capsys, text, problem):
+    from tympani.pipeline.cli import main
+
+    renderer = tmp_path / "r.py"
+    if text is not None:
+        renderer.write_text(text, encoding="utf-8")
+    assert main(["evaluate-extraction", "--renderer", str(renderer), "--out", str(tmp_path / "e"), "-q"]) == 2
+    assert capsys.readouterr().err.strip() == f"tympani: {renderer}: {problem}"
+    assert not (tmp_path / "e").exists()

@@ -281,15 +281,26 @@ def _configure_evaluate_extraction(p: argparse.ArgumentParser) -> None:
                         "(default); harsh: every nuisance at strength 0.3-1, bubbles always, doubled walls often")
     p.add_argument("--frames", type=positive_int, default=30, metavar="N", help="frames per video (default 30)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--renderer", default="", metavar="FILE.py",
+                   help="another renderer, a Python file defining NUISANCE_KEYS and render_video(path, seed, *, "
+                        "n_frames, size, px_per_mm, nuisance) -> (truth table, info with 'pose'); see "
+                        "docs/renderer-c.md (default: renderer C)")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="folder for the videos, their truth, per-frame scores, videos.csv and summary.json")
 
 
 def _run_evaluate_extraction(args: argparse.Namespace) -> int:
-    from tympani.pipeline.extract.evaluation import EvaluationConfig, evaluate_extraction, format_summary, summarise
+    from tympani.pipeline.extract.evaluation import (
+        EvaluationConfig,
+        evaluate_extraction,
+        format_summary,
+        load_renderer,
+        summarise,
+    )
     from tympani.pipeline.io import atomic_write_csv, atomic_write_json
 
-    cfg = EvaluationConfig(nuisance=args.nuisance, frames=args.frames)
+    load_renderer(args.renderer)  # a renderer that does not load is refused before any work
+    cfg = EvaluationConfig(nuisance=args.nuisance, frames=args.frames, renderer=args.renderer)
     results = evaluate_extraction(range(args.seed, args.seed + args.videos), args.out, cfg, workers=args.workers)
     summary = summarise(results)
     atomic_write_csv(Path(args.out) / "videos.csv", results)
@@ -571,7 +582,7 @@ COMMANDS: dict[str, Command] = {
         _configure_evaluate_extraction,
         _run_evaluate_extraction,
         "Render --videos insertion videos with renderer C (written independently of tympani's vision; "
-        "docs/renderer-c.md), extract each as 'tympani extract' does and score every frame against the exact "
+        "docs/renderer-c.md) or another renderer (--renderer), extract each as 'tympani extract' does and score every frame against the exact "
         "truth: the share of frames measured, the frames marked ok that are grossly wrong (theta_tip off by more "
         "than 0.3 rad or theta_con by more than 0.5 rad) among the contact frames, the median errors, and the "
         "registration's centre and scale errors. Writes videos.csv, summary.json and per-video files to --out.",

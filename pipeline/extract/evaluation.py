@@ -1,9 +1,9 @@
-"""Blind evaluation of the extraction on videos of renderer C (``tympani evaluate-extraction``).
+"""Blind evaluation of the extraction on videos of renderer C (``tympani evaluate-extraction``), or
+of any renderer given as a Python file.
 
 Renderer C (:mod:`tympani.pipeline.synthetic.renderer_c`) was written independently of tympani's
-vision, and tympani's thresholds were not tuned on it. Each seed draws a video (frame size, scale,
-the nuisances' strengths), renders it with its exact truth, extracts it as ``tympani extract``
-does and scores every frame against the truth:
+vision. Each seed draws a video (frame size, scale, the nuisances' strengths), renders it with its
+exact truth, extracts it as ``tympani extract`` does and scores every frame against the truth:
 
 - *measured*: the share of frames marked ``ok``;
 - *grossly wrong*: a frame marked ``ok`` whose ``theta_tip`` is off by more than 0.3 rad or whose
@@ -15,11 +15,13 @@ does and scores every frame against the truth:
 
 from __future__ import annotations
 
+import importlib.util
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pandas as pd
@@ -27,7 +29,7 @@ import pandas as pd
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.video import extract_video
 from tympani.pipeline.io import atomic_write_csv, check_writable_dir
-from tympani.pipeline.synthetic.renderer_c import NUISANCE_KEYS, render_video
+from tympani.pipeline.synthetic import renderer_c
 from tympani.vision.errors import InputError, one_line
 
 #: How the nuisances of a video are drawn: none; each off with probability 0.3, else of strength
@@ -48,12 +50,47 @@ class EvaluationConfig:
     gross_tip_rad, gross_con_rad : float
         A measured frame is grossly wrong beyond these |errors| (rad) of ``theta_tip`` or
         ``theta_con``.
+    renderer : str
+        A Python file defining the renderer (:func:`load_renderer`); empty: renderer C.
     """
 
     nuisance: str = "random"
     frames: int = 30
     gross_tip_rad: float = 0.3
     gross_con_rad: float = 0.5
+    renderer: str = ""
+
+
+def load_renderer(path: str) -> ModuleType:
+    """The renderer of a Python file, or renderer C for an empty ``path``.
+
+    The file defines ``NUISANCE_KEYS`` (the nuisances' names; a seed's draw gives each a strength
+    0–1) and ``render_video(path, seed, *, n_frames, size, px_per_mm, nuisance)``, which writes a
+    video OpenCV reads (30 fps) and returns ``(truth, info)``: a table with one row a frame
+    (``frame``, ``theta_tip``, ``theta_bot``, ``theta_con`` in rad, ``in_contact``) and a dict whose
+    ``"pose"`` holds ``centre_x_px``, ``centre_y_px`` (the image of the spiral's centre) and
+    ``px_per_mm``, and ``mirrored`` in the renderer's own convention. ``size`` is ``(width,
+    height)`` (px) and ``px_per_mm`` None leaves the scale to the renderer.
+
+    Raises
+    ------
+    InputError
+        The file does not exist, does not load, or lacks one of the two names.
+    """
+    if not path:
+        return renderer_c
+    if not Path(path).is_file():
+        raise InputError(path, "no such renderer file")
+    spec = importlib.util.spec_from_file_location(f"tympani_renderer_{abs(hash(str(Path(path).resolve())))}", path)
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    try:
+        spec.loader.exec_module(module)  # type: ignore[union-attr]
+    except Exception as exc:  # the renderer's own code: any failure to load is the file's
+        raise InputError(path, f"the renderer does not load: {one_line(exc)}") from exc
+    missing = [name for name in ("NUISANCE_KEYS", "render_video") if not hasattr(module, name)]
+    if missing:
+        raise InputError(path, f"the renderer defines no {' and no '.join(missing)}")
+    return module
 
 
 @dataclass(frozen=True)
@@ -91,22 +128,24 @@ class VideoScore:
     error: str = ""
 
 
-def draw_case(seed: int, mode: str) -> VideoCase:
+def draw_case(seed: int, mode: str, keys: tuple[str, ...] = renderer_c.NUISANCE_KEYS) -> VideoCase:
     """The video a seed stands for: 640×480 or 800×600 by parity, 15–20 px/mm in 40 % of videos
-    (else the renderer's draw), and nuisances as ``mode`` says (:data:`NUISANCE_MODES`)."""
+    (else the renderer's draw), and the nuisances ``keys`` as ``mode`` says (:data:`NUISANCE_MODES`;
+    harsh draws treat ``bubbles`` and ``doubled_walls`` as said there where the renderer has them)."""
     if mode not in NUISANCE_MODES:
         raise ValueError(f"unknown nuisance mode {mode!r}; choose from {', '.join(NUISANCE_MODES)}")
     rng = np.random.default_rng(seed)
     size = [(640, 480), (800, 600)][seed % 2]
     px_per_mm = float(rng.uniform(15, 20)) if rng.random() < 0.4 else None
     if mode == "clean":
-        nuisance = {k: 0.0 for k in NUISANCE_KEYS}
+        nuisance = {k: 0.0 for k in keys}
     elif mode == "random":
-        nuisance = {k: (0.0 if rng.random() < 0.3 else float(rng.uniform(0.1, 1.0))) for k in NUISANCE_KEYS}
+        nuisance = {k: (0.0 if rng.random() < 0.3 else float(rng.uniform(0.1, 1.0))) for k in keys}
     else:
-        nuisance = {k: float(rng.uniform(0.3, 1.0)) for k in NUISANCE_KEYS}
-        nuisance["bubbles"] = float(rng.uniform(0.5, 1.0))
-        nuisance["doubled_walls"] = float(rng.uniform(0.0, 1.0)) if rng.random() < 0.6 else 0.0
+        nuisance = {k: float(rng.uniform(0.3, 1.0)) for k in keys}
+        bubbles = float(rng.uniform(0.5, 1.0))
+        doubled = float(rng.uniform(0.0, 1.0)) if rng.random() < 0.6 else 0.0
+        nuisance.update({k: v for k, v in (("bubbles", bubbles), ("doubled_walls", doubled)) if k in keys})
     return VideoCase(seed, size, px_per_mm, nuisance)
 
 
@@ -170,11 +209,12 @@ def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig 
     """Render seed's video into ``out_dir`` (``v<seed>.mp4`` with ``v<seed>_truth.csv``), extract
     it, score it and write its per-frame table (``v<seed>_frames.csv``). A video tympani cannot
     extract at all scores no frame measured, with the error."""
-    case = draw_case(seed, cfg.nuisance)
+    renderer = load_renderer(cfg.renderer)
+    case = draw_case(seed, cfg.nuisance, tuple(renderer.NUISANCE_KEYS))
     out = Path(out_dir)
     path = out / f"v{seed}.mp4"
-    truth, info = render_video(path, seed, n_frames=cfg.frames, size=case.size, px_per_mm=case.px_per_mm,
-                               nuisance=case.nuisance)
+    truth, info = renderer.render_video(path, seed, n_frames=cfg.frames, size=case.size, px_per_mm=case.px_per_mm,
+                                        nuisance=case.nuisance)
     atomic_write_csv(out / f"v{seed}_truth.csv", truth)
     pose = info["pose"]
     try:
