@@ -44,6 +44,7 @@ class FakeRegistration:
     pose: CameraPose
     residual_px: float = 0.5
     n_frames: int = 0
+    array_axis_offset_px: float = float("nan")
 
     def to_dict(self) -> dict:
         p = self.pose

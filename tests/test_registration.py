@@ -586,3 +586,30 @@ def test_doubled_walls_whose_far_copy_is_stronger_register_on_the_arrays_axis():
         assert reg.walls_doubled, seed
         centre, _, _ = _errors(reg.pose, pose)
         assert abs(centre - np.hypot(*shift)) <= 0.5, (seed, centre, shift)
+
+
+def test_the_array_outside_the_entry_measures_the_pose_across_the_axis():
+    """The straight array outside the entry lies on the insertion axis: with the true pose its
+    centre reads within 0.3 px of the axis, with the pose moved 2-8 px across the axis it reads
+    that far off (within 0.3 px; measured max 0.25), and along the axis it does not move. The
+    registration JSON carries it, and the extraction warns beyond 3 px and 0.15 mm."""
+    from tympani.pipeline.extract.video import axis_warning
+    from tympani.vision.registration.axis import array_axis_offset
+
+    for seed in range(4):
+        pose, frames, _ = _stronger_copy_drawing(seed, with_array=True)
+        origin, x_w, normal = entry_frame(DEFAULT_PHANTOM)
+        ends = pose.to_image(np.array([origin, origin + normal, origin + x_w]))
+        n_img = (ends[1] - ends[0]) / np.hypot(*(ends[1] - ends[0]))
+        t_img = (ends[2] - ends[0]) / np.hypot(*(ends[2] - ends[0]))
+        assert abs(array_axis_offset(frames[0], pose, DEFAULT_PHANTOM)) <= 0.3
+        for shift in (2.0, -5.0, 8.0):
+            moved = replace(pose, centre_x_px=pose.centre_x_px + shift * n_img[0],
+                            centre_y_px=pose.centre_y_px + shift * n_img[1])
+            assert array_axis_offset(frames[0], moved, DEFAULT_PHANTOM) == pytest.approx(-shift, abs=0.3)
+        along = replace(pose, centre_x_px=pose.centre_x_px + 4 * t_img[0], centre_y_px=pose.centre_y_px + 4 * t_img[1])
+        assert abs(array_axis_offset(frames[0], along, DEFAULT_PHANTOM)) <= 0.3
+    reg = register(frames)
+    assert abs(reg.to_dict()["array_axis_offset_px"]) <= 0.5
+    assert axis_warning(replace(reg, array_axis_offset_px=2.0)) == ""
+    assert axis_warning(replace(reg, array_axis_offset_px=-6.0)).startswith("the array outside the entry lies 6.0 px")

@@ -32,7 +32,7 @@ class VisionSteps:
     register : callable
         ``register(gray_frames, phantom[, registration_config]) -> Registration``: the
         phantom's pose from a few greyscale frames of one view (the registration has
-        ``residual_px``, px, and ``to_dict()``).
+        ``pose``, ``residual_px`` and ``array_axis_offset_px``, px, and ``to_dict()``).
     check : callable
         ``check(gray, registration, phantom) -> float``: the residual (px) of a registration
         on one greyscale frame (NaN or large: the view changed).

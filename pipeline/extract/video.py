@@ -29,6 +29,7 @@ from tympani.pipeline.force.forcelog import read_csv_columns
 from tympani.vision.errors import InputError, one_line
 from tympani.vision.frames import Frame, FrameSource, open_frames
 from tympani.vision.greyscale import to_gray
+from tympani.vision.registration.axis import beyond_array_precision
 from tympani.vision.geometry import ElectrodeArray
 
 __all__ = [
@@ -129,6 +130,7 @@ def extract_video(
     width = array_width(rows, cfg.array)
     if width["warning"]:
         notes.append(width["warning"])
+    notes.extend(axis_warning(e.registration) for e in log.epochs if axis_warning(e.registration))
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
     table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
@@ -335,6 +337,18 @@ def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog
 
 
 # --------------------------------------------------------------------------- glitches, array width
+
+
+def axis_warning(registration: Any) -> str:
+    """A warning when the straight array outside the entry lies clearly off the registered
+    insertion axis (its ``array_axis_offset_px``, px; see
+    :class:`~tympani.vision.registration.Registration`), else ""."""
+    offset, ppm = float(registration.array_axis_offset_px), float(registration.pose.px_per_mm)
+    if not beyond_array_precision(offset, ppm):
+        return ""
+    return (f"the array outside the entry lies {abs(offset):.1f} px ({abs(offset) / ppm:.2f} mm) off the registered "
+            "insertion axis: the pose may be off across it (walls that show twice, registered on the wrong copy); "
+            "check it with tympani annotate")
 
 
 def array_width(rows: list[dict], array: ElectrodeArray, *, tolerance: float = 0.1, min_frames: int = 10) -> dict:

@@ -76,6 +76,13 @@ def array_axis_offset(gray: np.ndarray, pose: CameraPose, phantom: Phantom, step
     return mid * ppm
 
 
+def beyond_array_precision(offset_px: float, px_per_mm: float) -> bool:
+    """Whether an offset (px) across the insertion axis is larger than the array outside the entry
+    tells apart: at least :data:`_MIN_ACROSS_PX` and :data:`_MIN_ACROSS_MM` (at ``px_per_mm``,
+    px/mm); False for NaN."""
+    return bool(abs(offset_px) >= max(_MIN_ACROSS_PX, _MIN_ACROSS_MM * px_per_mm))
+
+
 def second_copy_is_the_wall(gray: np.ndarray, pose: CameraPose, shift: tuple[float, float],
                             phantom: Phantom) -> bool:
     """Whether the array outside the entry lies on the second copy's axis rather than the first's.
@@ -103,7 +110,7 @@ def second_copy_is_the_wall(gray: np.ndarray, pose: CameraPose, shift: tuple[flo
     ends = pose.to_image(np.array([origin, origin + normal]))
     n_img = (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
     delta = float(n_img @ np.asarray(shift, dtype=float))
-    if abs(delta) < max(_MIN_ACROSS_PX, _MIN_ACROSS_MM * float(pose.px_per_mm)):
+    if not beyond_array_precision(delta, float(pose.px_per_mm)):
         return False
     offset = array_axis_offset(gray, pose, phantom)
     return bool(np.isfinite(offset) and 0.75 <= offset / delta <= 1.25)

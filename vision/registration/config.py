@@ -153,6 +153,11 @@ class Registration:
         magnitudes at edges of the two copies; below 1 unless the array chose the fainter copy
         as the wall); NaN when the walls are single or
         where the copies were never resolved.
+    array_axis_offset_px : float
+        How far (px, across the insertion axis) the straight array outside the entry lies from the
+        registered axis; NaN where it does not show as a pair of edges an array's width apart. The
+        array lies on the axis, so a few pixels here mean the pose is off across it (walls that
+        show twice, registered on the wrong copy) or something else lies there.
     """
 
     pose: CameraPose
@@ -166,6 +171,7 @@ class Registration:
     walls_doubled: bool = False
     parallax_px: tuple[float, float] = (0.0, 0.0)
     second_copy_contrast: float = float("nan")
+    array_axis_offset_px: float = float("nan")
     _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @property
@@ -176,7 +182,8 @@ class Registration:
     def to_dict(self) -> dict:
         """The registration JSON's keys (docs/file-formats.md) plus the fit statistics and the doubled walls (JSON-ready):
         ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
-        ``wall_parallax_y_px`` and ``second_copy_contrast`` (NaN when unknown)."""
+        ``wall_parallax_y_px``, ``second_copy_contrast`` and ``array_axis_offset_px`` (NaN when
+        unknown)."""
         p = self.pose
         return {
             "centre_x_px": float(p.centre_x_px),
@@ -197,6 +204,7 @@ class Registration:
             "wall_parallax_x_px": float(self.parallax_px[0]),
             "wall_parallax_y_px": float(self.parallax_px[1]),
             "second_copy_contrast": float(self.second_copy_contrast),
+            "array_axis_offset_px": float(self.array_axis_offset_px),
         }
 
     @classmethod
@@ -222,6 +230,7 @@ class Registration:
             walls_doubled=bool(d.get("walls_doubled", False)),
             parallax_px=(float(d.get("wall_parallax_x_px", 0.0)), float(d.get("wall_parallax_y_px", 0.0))),
             second_copy_contrast=float(d.get("second_copy_contrast", nan)),
+            array_axis_offset_px=float(d.get("array_axis_offset_px", nan)),
         )
 
 

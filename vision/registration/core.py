@@ -18,7 +18,7 @@ from tympani.vision.registration.config import (
     RegistrationError,
     search_range,
 )
-from tympani.vision.registration.axis import second_copy_is_the_wall
+from tympani.vision.registration.axis import array_axis_offset, second_copy_is_the_wall
 from tympani.vision.registration.doubled import doubled_walls
 from tympani.vision.registration.frames import (
     Edges,
@@ -186,6 +186,7 @@ def register(
         walls_doubled=doubled is not None,
         parallax_px=shift,
         second_copy_contrast=contrast,
+        array_axis_offset_px=array_axis_offset(gray, pose, phantom),
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), check_walls(pose, model)
