@@ -613,3 +613,42 @@ def test_the_array_outside_the_entry_measures_the_pose_across_the_axis():
     assert abs(reg.to_dict()["array_axis_offset_px"]) <= 0.5
     assert axis_warning(replace(reg, array_axis_offset_px=2.0)) == ""
     assert axis_warning(replace(reg, array_axis_offset_px=-6.0)).startswith("the array outside the entry lies 6.0 px")
+
+
+def _grain_drawing(seed: int) -> tuple[CameraPose, list[np.ndarray]]:
+    """Three noisy 800×600 frames: the channel a brighter region on a flat plate 20 mm square
+    (24–32 px/mm), and outside the plate a wood-grained table: stripes 7–14 px apart, of
+    contrast 12–25 grey levels, in a random direction and wavy."""
+    rng = np.random.default_rng(seed)
+    w, h = 800, 600
+    pose = random_pose(rng, w, h, px_per_mm=(24.0, 32.0))
+    yy, xx = np.mgrid[:h, :w].astype(np.float32)
+    theta, period, amp = rng.uniform(0, np.pi), rng.uniform(7.0, 14.0), rng.uniform(12.0, 25.0)
+    u = xx * math.cos(theta) + yy * math.sin(theta)
+    u += cv2.GaussianBlur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), 25) * 60
+    grain = 110 + amp * np.sin(2 * np.pi * u / period) + 0.4 * amp * np.sin(2 * np.pi * u / (3.7 * period))
+    half = 10.0 * pose.px_per_mm
+    plate = (np.abs(xx - pose.centre_x_px) < half) & (np.abs(yy - pose.centre_y_px) < half)
+    channel = np.zeros((h, w), np.float32)
+    cv2.fillPoly(channel, [_poly(pose, channel_polygon(DEFAULT_PHANTOM))], 1.0, cv2.LINE_AA, 4)
+    img = np.where(plate, 90.0, grain) + 40.0 * channel
+    frames = [np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8) for _ in range(3)]
+    return pose, frames
+
+
+def test_a_wood_grained_table_is_refused_or_seen_through_never_misread():
+    """Dense grain around the plate outscores the walls in the global search's raw sums; the
+    proposals best by score over their patch's edge density are refined too. Twelve such
+    views (seeds 0–11): 3 are registered, each within 0.1 px and 0.1 % (measured 0.05 px, 0.04 %;
+    before: none), and every other one is refused, never a wrong pose."""
+    found = 0
+    for seed in range(12):
+        pose, frames = _grain_drawing(seed)
+        try:
+            reg = register(frames)
+        except RegistrationError:
+            continue
+        centre, scale, _ = _errors(reg.pose, pose)
+        assert centre <= 0.1 and scale <= 0.1, (seed, centre, scale)
+        found += 1
+    assert found >= 3

@@ -344,6 +344,10 @@ def coarse_search(edges: Edges, model: WallModel, cfg: RegistrationConfig,
     spectra and one inverse DFT (:func:`_circular_ccorr_pair`) give every scale's detector:
     the values are those of a separate ``cv2.matchTemplate`` on each field zero-padded by a
     template size (up to float rounding), at a fraction of the cost.
+
+    Returns the best ``cfg.n_candidates`` distinct proposals by score, then up to as many more,
+    not near those, that are best by score over the square root of their patch's edge energy
+    (a dense texture such as a wood-grained table outscores the walls in raw sums).
     """
     tpl = _cached_template_stack(model, cfg)
     size, c, n_rot = tpl.size, tpl.size // 2, len(tpl.rotations)
@@ -379,32 +383,39 @@ def coarse_search(edges: Edges, model: WallModel, cfg: RegistrationConfig,
     rows = patches.reshape(len(windows), 2 * size * size)[:, tpl.patch_index]
     scores = rows @ tpl.stack_real  # (n_spots, 2J)
     best = np.argmax(scores, axis=1)
-    best_scores = scores[np.arange(len(scores)), best].tolist()
+    best_scores = scores[np.arange(len(scores)), best]
+    # the same scores over the square root of each patch's edge energy: a dense texture (a
+    # wood-grained table) matches part of the template everywhere and outscores the walls in raw
+    # sums, not once its own density is divided out
+    energy = np.sqrt(np.einsum("ij,ij->i", rows, rows, dtype=np.float64))
+    relative = best_scores / np.maximum(energy, 1e-9) ** 0.5
     proposals: list[Proposal] = []
-    for (s, fx, fy, ax, ay), j, score in zip(spots, best.tolist(), best_scores):
+    for (s, fx, fy, ax, ay), j, score in zip(spots, best.tolist(), best_scores.tolist()):
         mirrored, rot = bool(j // n_rot), float(tpl.rotations[j % n_rot])
         cx, cy = (ax + 0.5) * fx - 0.5, (ay + 0.5) * fy - 0.5
         proposals.append(Proposal(score, CameraPose(cx, cy, wrap(rot), s, mirrored)))
-    proposals.sort(key=lambda p: -p.score)
-    return distinct(proposals, cfg.n_candidates)
+    raw = distinct(sorted(proposals, key=lambda p: -p.score), cfg.n_candidates)
+    by_density = distinct([proposals[i] for i in np.argsort(-relative, kind="stable")], cfg.n_candidates)
+    return raw + [p for p in by_density if not any(_same_place(p, q) for q in raw)]
+
+
+def _same_place(a: Proposal, b: Proposal) -> bool:
+    """Whether two proposals are near-duplicates: same mirror, scales within 12 %, rotations
+    within 0.15 rad and centres within half a millimetre."""
+    p, q = a.pose, b.pose
+    return (
+        p.mirrored == q.mirrored
+        and abs(math.log(p.px_per_mm / q.px_per_mm)) < 0.12
+        and abs(wrap(p.rotation_rad - q.rotation_rad)) < 0.15
+        and math.hypot(p.centre_x_px - q.centre_x_px, p.centre_y_px - q.centre_y_px) < 0.5 * p.px_per_mm
+    )
 
 
 def distinct(proposals: list[Proposal], n: int) -> list[Proposal]:
-    """The best ``n`` proposals, skipping near-duplicates of better ones."""
+    """The best ``n`` proposals, skipping near-duplicates of better ones (:func:`_same_place`)."""
     out: list[Proposal] = []
     for p in proposals:
-        dup = False
-        for q in out:
-            a, b = p.pose, q.pose
-            if (
-                a.mirrored == b.mirrored
-                and abs(math.log(a.px_per_mm / b.px_per_mm)) < 0.12
-                and abs(wrap(a.rotation_rad - b.rotation_rad)) < 0.15
-                and math.hypot(a.centre_x_px - b.centre_x_px, a.centre_y_px - b.centre_y_px) < 0.5 * a.px_per_mm
-            ):
-                dup = True
-                break
-        if not dup:
+        if not any(_same_place(p, q) for q in out):
             out.append(p)
             if len(out) == n:
                 break
