@@ -130,7 +130,7 @@ def extract_video(
     width = array_width(rows, cfg.array)
     if width["warning"]:
         notes.append(width["warning"])
-    notes.extend(axis_warning(e.registration) for e in log.epochs if axis_warning(e.registration))
+    notes.extend(filter(None, (axis_warning(e.registration) for e in log.epochs)))
     table = pd.DataFrame(rows)
     extras = [c for c in table.columns if c not in ANGLE_COLUMNS and c != "reg_epoch"]
     table = table.reindex(columns=[*ANGLE_COLUMNS, *extras, "reg_epoch"])
