@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from tympani.vision.angles.arrays import accumulate_rows, odd_ceil, take2d
+from tympani.vision.angles.arrays import accumulate_rows, median, odd_ceil, take2d
 from tympani.vision.angles.bubbles import bubble_end, with_compact
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import (
@@ -276,9 +276,6 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     inner = np.abs(plan.u)
     # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end,
     # its bright pixels (coverage, blurred * scale + shift, up to cfg.bubble_bright) clear of the walls
-    bright = blurred * scale
-    bright += shift
-    bright = bright <= cfg.bubble_bright
     windows = []
     half_median: dict[tuple[int, int], float] = {}  # frames with the same window share its median
     for b in np.flatnonzero(last_dark >= 0).tolist():
@@ -286,10 +283,11 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         cols = slice(int(strip.start[b]) + a, int(strip.start[b] + strip.n[b]))
         span_b = (int(lo[b]) + a, int(lo[b] + strip.n[b]))
         if span_b not in half_median:
-            half_median[span_b] = float(np.median(plan.half_mm[span_b[0] : span_b[1]]))
+            half_median[span_b] = median(plan.half_mm[span_b[0] : span_b[1]])
         half_b = half_median[span_b]
         windows.append((b, end, a, cols, half_b, inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
-    candidates = with_compact([bright[:, cols] & i[:, None] for *_, cols, _, i in windows], step,
+    candidates = with_compact([(blurred[:, cols] * scale[cols] + shift[cols] <= cfg.bubble_bright) & i[:, None]
+                               for *_, cols, _, i in windows], step,
                                np.array([du * w[4] for w in windows]), cfg)
     for (b, end, a, cols, half_b, inside_b), candidate in zip(windows, candidates.tolist()):
         if not candidate:  # no bubble-like component in the window: bubble_end would find none
