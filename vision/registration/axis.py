@@ -1,6 +1,7 @@
 """Which copy of doubled walls is the wall the array runs in: the straight array outside the
 entry lies on the insertion axis, so its centre line, measured across the axis, sits on the axis
-of the true copy and off the other's by the parallax's component across it."""
+of the true copy and off the other's by the parallax's component across it. A fit whose axis
+the array lies off is a cue to seek the other copy where the array lies."""
 
 from __future__ import annotations
 
@@ -23,9 +24,14 @@ _WIDTH_MM = (0.4, 1.5)
 _MIN_SHARE = 0.4
 _MAX_SPREAD_MM = 0.15
 # Least move (px and mm) of the axis across itself for the array to tell the copies apart: our
-# renderer's arrays lie up to 1.7 px (0.07 mm) off the axis as measured.
+# renderer's arrays lie up to 3 px (0.08 mm) off the axis as measured.
 _MIN_ACROSS_PX = 3.0
 _MIN_ACROSS_MM = 0.15
+# Choosing between two copies already found: how far (mm, and _MIN_ACROSS_PX) the array must lie
+# off the first copy's axis (our renderer's lie up to 0.08 mm off as measured), and how much
+# nearer (px) the second's.
+_NEAR_MIN_MM = 0.10
+_NEAR_MARGIN_PX = 0.5
 
 
 def array_axis_offset(gray: np.ndarray, pose: CameraPose, phantom: Phantom, step_px: float = 1.0) -> float:
@@ -83,9 +89,41 @@ def beyond_array_precision(offset_px: float, px_per_mm: float) -> bool:
     return bool(abs(offset_px) >= max(_MIN_ACROSS_PX, _MIN_ACROSS_MM * px_per_mm))
 
 
-def second_copy_is_the_wall(gray: np.ndarray, pose: CameraPose, shift: tuple[float, float],
-                            phantom: Phantom) -> bool:
-    """Whether the array outside the entry lies on the second copy's axis rather than the first's.
+def axis_normal(pose: CameraPose, phantom: Phantom) -> np.ndarray:
+    """The entry's outward normal in the image of ``pose`` (unit vector, x right, y down): the
+    direction :func:`array_axis_offset` measures along."""
+    origin, _, normal = entry_frame(phantom)
+    ends = pose.to_image(np.array([origin, origin + normal]))
+    return (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
+
+
+def nearer_second_copy(offset_px: float, delta_px: float, px_per_mm: float) -> bool:
+    """Whether the array lies off the first copy's axis and clearly nearer the second's.
+
+    Parameters
+    ----------
+    offset_px : float
+        The array's offset (px) from the first copy's axis (:func:`array_axis_offset`).
+    delta_px : float
+        The second copy's axis offset (px) from the first's, along the same normal.
+    px_per_mm : float
+        Scale (px/mm).
+
+    Returns
+    -------
+    bool
+        True when the array is at least :data:`_MIN_ACROSS_PX` and :data:`_NEAR_MIN_MM` off
+        the first copy's axis and nearer the second's by at least :data:`_NEAR_MARGIN_PX`;
+        False for NaN.
+    """
+    if not (np.isfinite(offset_px) and abs(offset_px) >= max(_MIN_ACROSS_PX, _NEAR_MIN_MM * px_per_mm)):
+        return False
+    return bool(abs(offset_px - delta_px) <= abs(offset_px) - _NEAR_MARGIN_PX)
+
+
+def copy_offsets(gray: np.ndarray, pose: CameraPose, shift: tuple[float, float],
+                 phantom: Phantom) -> tuple[float, float]:
+    """Where the array outside the entry lies against two copies of the walls.
 
     Parameters
     ----------
@@ -100,17 +138,27 @@ def second_copy_is_the_wall(gray: np.ndarray, pose: CameraPose, shift: tuple[flo
 
     Returns
     -------
-    bool
-        True when the shift moves the axis across itself by at least :data:`_MIN_ACROSS_PX` and
-        :data:`_MIN_ACROSS_MM` and the array's centre (:func:`array_axis_offset`) lies within a
-        quarter of that of the second copy's axis; False otherwise (including an array not
-        found or out of view).
+    offset : float
+        The array's centre line off the first copy's axis (px, :func:`array_axis_offset`; NaN
+        where it does not show).
+    delta : float
+        The second copy's axis off the first's (px), along the same normal.
     """
-    origin, _, normal = entry_frame(phantom)
-    ends = pose.to_image(np.array([origin, origin + normal]))
-    n_img = (ends[1] - ends[0]) / max(float(np.hypot(*(ends[1] - ends[0]))), 1e-12)
-    delta = float(n_img @ np.asarray(shift, dtype=float))
-    if not beyond_array_precision(delta, float(pose.px_per_mm)):
+    delta = float(axis_normal(pose, phantom) @ np.asarray(shift, dtype=float))
+    return array_axis_offset(gray, pose, phantom), delta
+
+
+def second_copy_is_the_wall(offset_px: float, delta_px: float, px_per_mm: float) -> bool:
+    """Whether the array outside the entry lies on the second copy's axis rather than the first's
+    (offsets as :func:`copy_offsets` gives them, at ``px_per_mm`` px/mm).
+
+    Returns
+    -------
+    bool
+        True when the copies' axes are at least :data:`_MIN_ACROSS_PX` and :data:`_MIN_ACROSS_MM`
+        apart and the array's centre lies within a quarter of that of the second copy's axis;
+        False otherwise (including an array not found or out of view).
+    """
+    if not beyond_array_precision(delta_px, px_per_mm):
         return False
-    offset = array_axis_offset(gray, pose, phantom)
-    return bool(np.isfinite(offset) and 0.75 <= offset / delta <= 1.25)
+    return bool(np.isfinite(offset_px) and 0.75 <= offset_px / delta_px <= 1.25)

@@ -18,7 +18,13 @@ from tympani.vision.registration.config import (
     RegistrationError,
     search_range,
 )
-from tympani.vision.registration.axis import array_axis_offset, second_copy_is_the_wall
+from tympani.vision.registration.axis import (
+    array_axis_offset,
+    axis_normal,
+    beyond_array_precision,
+    copy_offsets,
+    nearer_second_copy,
+)
 from tympani.vision.registration.doubled import doubled_walls
 from tympani.vision.registration.frames import (
     Edges,
@@ -150,14 +156,18 @@ def register(
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
     pose, half_width, fit = best
-    def on_second_axis(first: CameraPose, shift: tuple[float, float]) -> bool:
-        return second_copy_is_the_wall(gray, first, shift, phantom)
+    def where_array(first: CameraPose, shift: tuple[float, float]) -> tuple[float, float]:
+        return copy_offsets(gray, first, shift, phantom)
 
-    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, on_second_axis)
+    # the array outside the entry off this fit's axis: the other copy of doubled walls is sought
+    # where the array lies
+    offset = array_axis_offset(gray, pose, phantom)
+    guide = (axis_normal(pose, phantom), offset) if beyond_array_precision(offset, pose.px_per_mm) else None
+    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide)
     shift, contrast = (0.0, 0.0), float("nan")
     if doubled is not None:
         copies, contrast = doubled
-        if on_second_axis(copies.pose, copies.shift):
+        if nearer_second_copy(*where_array(copies.pose, copies.shift), copies.pose.px_per_mm):
             copies, contrast = copies.swapped(), 1.0 / contrast
         pose, half_width, shift = copies.pose, copies.half_width, copies.shift
         sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from tympani.vision.geometry import CameraPose
+from tympani.vision.registration.axis import nearer_second_copy, second_copy_is_the_wall
 from tympani.vision.registration.config import RegistrationConfig
 from tympani.vision.registration.frames import Edges
 from tympani.vision.registration.model import WallModel
@@ -58,6 +59,12 @@ _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 # taken for a blurred single wall (renderer C: blurred 0.32-0.41; doubled walls 0.52-1.55, ours
 # 0.80-1.02).
 _MAX_BLUR_RATIO = 0.45
+# How far (px) a guided start's move across the insertion axis may differ from the array's.
+_GUIDE_TOL_PX = 1.5
+# How much more of its expected edges (share) a guided second copy must find than the same
+# shift turned by 90, 180 and 270 degrees does (their median: what a random shift finds, about a
+# tenth on a harsh frame).
+_MIN_GUIDED_EXCESS = 0.08
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,11 @@ class _Support:
     def first_rate(self) -> float:
         """Fraction of the first copy's shown edges found."""
         return self.matched1 / max(self.shown1, 1)
+
+    @property
+    def second_rate(self) -> float:
+        """Fraction of the second copy's shown edges found."""
+        return self.matched2 / max(self.shown2, 1)
 
     @property
     def second_is_real(self) -> bool:
@@ -634,6 +646,48 @@ def _copy_starts(
     return starts
 
 
+def _guided_start(
+    pose: CameraPose,
+    half_width: float,
+    sfield: np.ndarray,
+    model: WallModel,
+    classes: tuple[float, ...],
+    guide: tuple[np.ndarray, float],
+) -> _Copies | None:
+    """A start for :func:`_refine_copies` where the array outside the entry says the other copy
+    lies: ``guide`` is the image normal of the insertion axis and the array's offset (px) along
+    it from ``pose``'s axis. The best shift of :func:`_shift_surface`, with the fit's own edges
+    masked, whose move across the axis is the array's (within :data:`_GUIDE_TOL_PX` or a
+    quarter of it); None when no such shift shows any edges."""
+    normal, offset = guide
+    sparse = model.subsample(2.0 / pose.px_per_mm)
+    sg = _surface_grid(_MAX_PARALLAX_MM * pose.px_per_mm + 2.0, classes)
+    tables = _surface_tables(pose, sfield, sparse, classes, sg.t)
+    masked, _ = _shift_surface(_masked_tables(tables, sg.t, half_width), sg)
+    gx, gy = np.meshgrid(sg.grid, sg.grid)  # x = grid[column], y = grid[row]
+    band = (np.abs(normal[0] * gx + normal[1] * gy - offset) <= max(_GUIDE_TOL_PX, 0.25 * abs(offset))) & (
+        np.hypot(gx, gy) >= 2.0)
+    r, c = np.unravel_index(np.argmax(np.where(band, masked, -np.inf)), masked.shape)
+    if not (band[r, c] and masked[r, c] > 0):
+        return None
+    return _Copies(pose, half_width, (float(sg.grid[c]), float(sg.grid[r])))
+
+
+def _second_shows(copies: _Copies, support: _Support, layers: np.ndarray, model: WallModel,
+                  classes: tuple[float, ...]) -> bool:
+    """Whether the second copy of ``copies`` (with ``support`` on ``model``) shows at all:
+    expected at enough points (:data:`_MIN_SECOND_SHOWN`) and found at
+    :data:`_MIN_GUIDED_EXCESS` more of them than the same shift turned by 90°, 180° and 270°
+    finds (the median of the three)."""
+    if support.shown2 < _MIN_SECOND_SHOWN * support.n_points:
+        return False
+    dx, dy = copies.shift
+    turned = [(-dy, dx), (-dx, -dy), (dy, -dx)]
+    rates = [_copy_support(_Copies(copies.pose, copies.half_width, t), layers, model, classes).second_rate
+             for t in turned]
+    return support.second_rate >= float(np.median(rates)) + _MIN_GUIDED_EXCESS
+
+
 def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift: np.ndarray,
                 reach_px: float = 6.0) -> float:
     """How much weaker the walls' edges are along ``shift`` than across it, at one copy.
@@ -679,7 +733,8 @@ def doubled_walls(
     model: WallModel,
     cfg: RegistrationConfig,
     b_per_rad: float,
-    on_second_axis: Callable[[CameraPose, tuple[float, float]], bool] | None = None,
+    where_array: Callable[[CameraPose, tuple[float, float]], tuple[float, float]] | None = None,
+    guide: tuple[np.ndarray, float] | None = None,
 ) -> tuple[_Copies, float] | None:
     """Doubled walls near a single-copy fit, or None when the walls are single.
 
@@ -687,30 +742,46 @@ def doubled_walls(
     second copy is real (:attr:`_Support.second_is_real`) and whose first copy lies on edges
     nearly as often as the single copy did (:attr:`_Support.first_rate`, at least 85 % of
     it: a shift onto another turn's walls can pass the first test; or, given
-    ``on_second_axis(pose, shift)``, where it says the array lies on the second copy's insertion
-    axis: the single fit then sat on a copy that is not the wall), the best supported
+    ``where_array(pose, shift)`` (:func:`~tympani.vision.registration.axis.copy_offsets`), where
+    the array lies on the second copy's insertion axis
+    (:func:`~tympani.vision.registration.axis.second_copy_is_the_wall`: the single fit then sat
+    on a copy that is not the wall), the best supported
     (:attr:`_Support.score`) is refined on walls ``cfg.model_spacing_px`` apart, turned along
     the spiral's valley when that fits better (:func:`valley_scan`), and its copies named
     so that the first is the one with the stronger edges; copies closer than
     :data:`_MIN_PARALLAX_MM`, or that are the two ridges of a wall blurred along the shift
-    (:func:`_blur_ratio`), are taken for single walls. Returns the copies and the second
-    copy's relative contrast (:func:`_copy_contrast`).
+    (:func:`_blur_ratio`), are taken for single walls. With ``guide`` (see
+    :func:`_guided_start`) and ``where_array``, the start where the array says the other copy
+    lies is tried too; it needs only a second copy that shows (:func:`_second_shows`)
+    and the array nearer its axis than the first's
+    (:func:`~tympani.vision.registration.axis.nearer_second_copy`). Returns the copies and the
+    second copy's relative contrast (:func:`_copy_contrast`).
     """
     coarse = model.subsample(4.0 / pose.px_per_mm)
     classes = _wall_classes(pose, edges.signed, coarse)
     fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=_MAX_PARALLAX_MM * pose.px_per_mm)
     single = _copy_support(_Copies(pose, half_width, (0.0, 0.0)), layers, coarse, classes)
-    best: tuple[float, _Copies] | None = None
-    for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg):
+    starts = [(start, False) for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg)]
+    guided = _guided_start(pose, half_width, edges.signed, fine, classes, guide) if guide is not None else None
+    if guided is not None and where_array is not None:
+        starts.append((guided, True))
+    best: tuple[float, _Copies, bool] | None = None
+    for start, by_array in starts:
         copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
         support = _copy_support(copies, layers, coarse, classes)
-        plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
-            on_second_axis is not None and on_second_axis(copies.pose, copies.shift)))
+        if by_array:  # where_array is given
+            plausible = _second_shows(copies, support, layers, coarse, classes) and nearer_second_copy(*where_array(copies.pose, copies.shift),
+                                                                       copies.pose.px_per_mm)
+        else:
+            plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
+                where_array is not None and second_copy_is_the_wall(*where_array(copies.pose, copies.shift),
+                                                                    copies.pose.px_per_mm)))
         if plausible and (best is None or support.score > best[0]):
-            best = (support.score, copies)
+            best = (support.score, copies, by_array)
     if best is None:
         return None
+    by_array = best[2]
     copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
@@ -720,7 +791,8 @@ def doubled_walls(
             copies = turned
     support = _copy_support(copies, layers, fine, classes)
     least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
-    if not (support.second_is_real and math.hypot(*copies.shift) >= least):
+    shows = _second_shows(copies, support, layers, fine, classes) if by_array else support.second_is_real
+    if not (shows and math.hypot(*copies.shift) >= least):
         return None
     shift = np.asarray(copies.shift)
     magnitude = edges.edge_map.magnitude
