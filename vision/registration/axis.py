@@ -89,6 +89,13 @@ def beyond_array_precision(offset_px: float, px_per_mm: float) -> bool:
     return bool(abs(offset_px) >= max(_MIN_ACROSS_PX, _MIN_ACROSS_MM * px_per_mm))
 
 
+def off_the_axis(offset_px: float, px_per_mm: float) -> bool:
+    """Whether the array lies off a copy's axis by enough (px, at ``px_per_mm`` px/mm) to say
+    the other copy may be the wall: at least :data:`_MIN_ACROSS_PX` and :data:`_NEAR_MIN_MM`;
+    False for NaN."""
+    return bool(np.isfinite(offset_px) and abs(offset_px) >= max(_MIN_ACROSS_PX, _NEAR_MIN_MM * px_per_mm))
+
+
 def axis_normal(pose: CameraPose, phantom: Phantom) -> np.ndarray:
     """The entry's outward normal in the image of ``pose`` (unit vector, x right, y down): the
     direction :func:`array_axis_offset` measures along."""
@@ -112,11 +119,10 @@ def nearer_second_copy(offset_px: float, delta_px: float, px_per_mm: float) -> b
     Returns
     -------
     bool
-        True when the array is at least :data:`_MIN_ACROSS_PX` and :data:`_NEAR_MIN_MM` off
-        the first copy's axis and nearer the second's by at least :data:`_NEAR_MARGIN_PX`;
-        False for NaN.
+        True when the array is off the first copy's axis (:func:`off_the_axis`) and nearer
+        the second's by at least :data:`_NEAR_MARGIN_PX`; False for NaN.
     """
-    if not (np.isfinite(offset_px) and abs(offset_px) >= max(_MIN_ACROSS_PX, _NEAR_MIN_MM * px_per_mm)):
+    if not off_the_axis(offset_px, px_per_mm):
         return False
     return bool(abs(offset_px - delta_px) <= abs(offset_px) - _NEAR_MARGIN_PX)
 

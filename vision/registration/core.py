@@ -21,9 +21,9 @@ from tympani.vision.registration.config import (
 from tympani.vision.registration.axis import (
     array_axis_offset,
     axis_normal,
-    beyond_array_precision,
     copy_offsets,
     nearer_second_copy,
+    off_the_axis,
 )
 from tympani.vision.registration.doubled import doubled_walls
 from tympani.vision.registration.frames import (
@@ -162,7 +162,7 @@ def register(
     # the array outside the entry off this fit's axis: the other copy of doubled walls is sought
     # where the array lies
     offset = array_axis_offset(gray, pose, phantom)
-    guide = (axis_normal(pose, phantom), offset) if beyond_array_precision(offset, pose.px_per_mm) else None
+    guide = (axis_normal(pose, phantom), offset) if off_the_axis(offset, pose.px_per_mm) else None
     doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide)
     shift, contrast = (0.0, 0.0), float("nan")
     if doubled is not None:
