@@ -70,8 +70,7 @@ def test_runs_of_misread_frames_are_marked_and_nothing_else(seed: int) -> None:
 
 def test_frames_that_follow_no_insertion_are_all_marked() -> None:
     """When no line holds half the frames (depth all over the place), at least half are misread
-    and nothing says which: every measured frame is marked, with the reason; too few frames:
-    silent."""
+    and nothing says which: every measured frame is marked, with the reason."""
     rng = np.random.default_rng(7)
     t = np.arange(40) / 10.0
     rows = _rows(t, rng.uniform(0, 20, 40))
@@ -79,8 +78,24 @@ def test_frames_that_follow_no_insertion_are_all_marked() -> None:
     assert not any(r["ok"] for r in rows) and sum(u["frames"] for u in runs) == 40
     assert note.startswith("40 frame(s) marked not ok: the measured depths follow no constant-speed insertion")
     assert rows[0]["reason"].startswith("kinematics: the measured depths follow no")
-    rows = _rows(t[:5], np.array([1.0, 9.0, 1.2, 1.3, 1.4]))
-    assert flag_kinematics(rows) == ([], "") and all(r["ok"] for r in rows)
+
+
+def test_too_few_frames_for_a_line_are_checked_for_order() -> None:
+    """Fewer than eight frames with a depth give no line; the insertion only goes in, so a frame
+    deeper than a later one by more than the tolerance contradicts it, and with so few frames
+    both are marked (either may be misread); frames in order are kept, whatever their spacing."""
+    t = np.arange(5) / 10.0
+    rows = _rows(t, np.array([1.0, 9.0, 1.2, 1.3, 1.4]))
+    runs, note = flag_kinematics(rows)
+    assert [r["ok"] for r in rows] == [True, False, False, False, False]
+    assert [u["first"] for u in runs] == [1, 2, 3, 4]
+    assert rows[1]["reason"] == ("kinematics: depth 9.00 mm and 1.20 mm in frame 2 cannot both hold (the insertion "
+                                 "only goes in; too few frames to tell which is misread)")
+    assert math.isnan(rows[2]["theta_tip"]) and rows[0]["theta_tip"] == 1.0
+    assert note.startswith("4 frame(s) marked not ok: with 5 frames measured")
+    for depths in ([1.0, 1.1, 5.0, 5.2, 12.0], [3.0, 2.6, 2.9, 3.3, 3.2], [2.0]):  # in order within 0.5 mm
+        rows = _rows(t[: len(depths)], np.array(depths))
+        assert flag_kinematics(rows) == ([], "") and all(r["ok"] for r in rows)
 
 
 def test_tolerance_widens_with_the_frames_own_scatter() -> None:

@@ -169,12 +169,41 @@ def _runs(index: np.ndarray) -> list[tuple[int, int]]:
     return [(int(index[a]), int(index[b])) for a, b in zip(starts, ends)]
 
 
+def order_conflicts(time_s: np.ndarray, depth_mm: np.ndarray, tol_mm: float) -> np.ndarray:
+    """Index, for each frame, of a frame whose depth contradicts it (-1 for none): one later and
+    more than ``tol_mm`` (mm) shallower, or earlier and more than ``tol_mm`` deeper; the
+    insertion only goes in. Of two such frames either may be the misread one.
+
+    Parameters
+    ----------
+    time_s, depth_mm : ndarray
+        Frame times (s) and measured depths (mm).
+    tol_mm : float
+        Tolerance (mm).
+
+    Returns
+    -------
+    ndarray of int
+        The most contradicting frame's index (largest depth difference), or -1.
+    """
+    t, d = np.asarray(time_s, dtype=float), np.asarray(depth_mm, dtype=float)
+    if len(t) == 0:
+        return np.zeros(0, np.intp)
+    # depth lost going forward in time between frame i (row) and frame j (column)
+    fall = np.where(t[None, :] > t[:, None], d[:, None] - d[None, :], d[None, :] - d[:, None])
+    fall[t[None, :] == t[:, None]] = -np.inf
+    worst = np.argmax(fall, axis=1)
+    return np.where(fall[np.arange(len(t)), worst] > tol_mm, worst, -1)
+
+
 def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()) -> tuple[list[dict], str]:
     """Mark the measured frames whose depth is off the video's constant-speed insertion, in place.
 
     The insertion is fitted (:func:`fit_insertion`) to every row with a finite ``depth_mm``,
     measured or not (a frame refused for an unclear contact start still has its tip and depth),
-    and only measured rows are marked.
+    and only measured rows are marked. With fewer than ``cfg.min_frames`` such rows, too few for
+    a line, a measured row is marked when another's depth contradicts it
+    (:func:`order_conflicts`).
 
     Parameters
     ----------
@@ -198,7 +227,7 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
     seen = [i for i in order if np.isfinite(float(rows[i].get("depth_mm", math.nan) or math.nan))]
     ok = [i for i in seen if rows[i]["ok"]]
     if len(seen) < cfg.min_frames:
-        return [], ""
+        return _flag_order(rows, seen, cfg)
     # the insertion is fitted to every frame whose depth was measured, the ones refused for
     # their contact start too (their tip was found), and checked on the measured ones
     fit = fit_insertion(np.array([float(rows[i]["time_s"]) for i in seen]),
@@ -233,4 +262,30 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         spans = ", ".join(f"{u['first']}–{u['last']}" if u["last"] > u["first"] else f"{u['first']}" for u in runs)
         note = (f"{len(off)} frame(s) marked not ok off the constant-speed insertion ({fit.speed_mm_s:.3g} mm/s, "
                 f"tolerance {fit.tol_mm:.2f} mm): frames {spans}")
+    return runs, note
+
+
+def _flag_order(rows: list[dict], seen: list[int], cfg: KinematicsConfig) -> tuple[list[dict], str]:
+    """Too few frames with a depth for a line: mark the measured ones of ``seen`` (row indices, in
+    frame order) whose depth contradicts another's (:func:`order_conflicts`), in place; returns
+    runs and note as :func:`flag_kinematics`."""
+    if len(seen) < 2:
+        return [], ""
+    t = np.array([float(rows[i]["time_s"]) for i in seen])
+    d = np.array([float(rows[i]["depth_mm"]) for i in seen])
+    other = order_conflicts(t, d, cfg.tol_mm)
+    marked = [k for k in range(len(seen)) if other[k] >= 0 and rows[seen[k]]["ok"]]
+    runs = []
+    for k in marked:
+        j = int(other[k])
+        row, partner = rows[seen[k]], rows[seen[j]]
+        row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
+                   reason=(f"kinematics: depth {d[k]:.2f} mm and {d[j]:.2f} mm in frame {partner['frame']} cannot "
+                           f"both hold (the insertion only goes in; too few frames to tell which is misread)"))
+        runs.append(dict(first=int(row["frame"]), last=int(row["frame"]), frames=1, off_mm=round(float(d[k] - d[j]), 3)))
+    note = ""
+    if marked:
+        note = (f"{len(marked)} frame(s) marked not ok: with {len(seen)} frames measured, too few for the "
+                f"constant-speed check, their depths contradict each other (frames "
+                f"{', '.join(str(r['first']) for r in runs)})")
     return runs, note
