@@ -196,7 +196,7 @@ def register(
         walls_doubled=doubled is not None,
         parallax_px=shift,
         second_copy_contrast=contrast,
-        array_axis_offset_px=array_axis_offset(gray, pose, phantom),
+        array_axis_offset_px=offset if doubled is None else array_axis_offset(gray, pose, phantom),
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), check_walls(pose, model)
