@@ -1,6 +1,6 @@
 """Small array helpers the measurement's stages share: element picking, odd window lengths, a
-quantile by sorting, a median by partition, running reductions down the offsets and the erosion of masks along the
-stations."""
+quantile by sorting, a median by partition, running reductions down the offsets and the erosion
+of masks along the stations."""
 
 from __future__ import annotations
 

@@ -82,18 +82,24 @@ def array_axis_offset(gray: np.ndarray, pose: CameraPose, phantom: Phantom, step
     return mid * ppm
 
 
+def _at_least(offset_px: float, px_per_mm: float, min_mm: float) -> bool:
+    """Whether ``offset_px`` (px) is at least :data:`_MIN_ACROSS_PX` and ``min_mm`` (mm, at
+    ``px_per_mm`` px/mm) in size; False for NaN."""
+    return bool(abs(offset_px) >= max(_MIN_ACROSS_PX, min_mm * px_per_mm))
+
+
 def beyond_array_precision(offset_px: float, px_per_mm: float) -> bool:
     """Whether an offset (px) across the insertion axis is larger than the array outside the entry
     tells apart: at least :data:`_MIN_ACROSS_PX` and :data:`_MIN_ACROSS_MM` (at ``px_per_mm``,
     px/mm); False for NaN."""
-    return bool(abs(offset_px) >= max(_MIN_ACROSS_PX, _MIN_ACROSS_MM * px_per_mm))
+    return _at_least(offset_px, px_per_mm, _MIN_ACROSS_MM)
 
 
 def off_the_axis(offset_px: float, px_per_mm: float) -> bool:
     """Whether the array lies off a copy's axis by enough (px, at ``px_per_mm`` px/mm) to say
     the other copy may be the wall: at least :data:`_MIN_ACROSS_PX` and :data:`_NEAR_MIN_MM`;
     False for NaN."""
-    return bool(np.isfinite(offset_px) and abs(offset_px) >= max(_MIN_ACROSS_PX, _NEAR_MIN_MM * px_per_mm))
+    return _at_least(offset_px, px_per_mm, _NEAR_MIN_MM)
 
 
 def axis_normal(pose: CameraPose, phantom: Phantom) -> np.ndarray:

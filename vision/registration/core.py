@@ -11,19 +11,19 @@ import numpy as np
 
 from tympani.vision.edges import edges_from_gradients
 from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, Phantom
-from tympani.vision.registration.coarse import Proposal, coarse_search, distinct
-from tympani.vision.registration.config import (
-    Registration,
-    RegistrationConfig,
-    RegistrationError,
-    search_range,
-)
 from tympani.vision.registration.axis import (
     array_axis_offset,
     axis_normal,
     copy_offsets,
     nearer_second_copy,
     off_the_axis,
+)
+from tympani.vision.registration.coarse import Proposal, coarse_search, distinct
+from tympani.vision.registration.config import (
+    Registration,
+    RegistrationConfig,
+    RegistrationError,
+    search_range,
 )
 from tympani.vision.registration.doubled import doubled_walls
 from tympani.vision.registration.frames import (
@@ -156,6 +156,7 @@ def register(
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
     pose, half_width, fit = best
+
     def where_array(first: CameraPose, shift: tuple[float, float]) -> tuple[float, float]:
         return copy_offsets(gray, first, shift, phantom)
 
@@ -167,8 +168,10 @@ def register(
     shift, contrast = (0.0, 0.0), float("nan")
     if doubled is not None:
         copies, contrast = doubled
-        if nearer_second_copy(*where_array(copies.pose, copies.shift), copies.pose.px_per_mm):
+        offset, delta = where_array(copies.pose, copies.shift)
+        if nearer_second_copy(offset, delta, copies.pose.px_per_mm):
             copies, contrast = copies.swapped(), 1.0 / contrast
+            offset = array_axis_offset(gray, copies.pose, phantom)
         pose, half_width, shift = copies.pose, copies.half_width, copies.shift
         sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
         fit = wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, np.asarray(shift))
@@ -196,7 +199,7 @@ def register(
         walls_doubled=doubled is not None,
         parallax_px=shift,
         second_copy_contrast=contrast,
-        array_axis_offset_px=offset if doubled is None else array_axis_offset(gray, pose, phantom),
+        array_axis_offset_px=offset,
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), check_walls(pose, model)

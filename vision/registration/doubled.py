@@ -604,9 +604,11 @@ def _copy_starts(
     model: WallModel,
     classes: tuple[float, ...],
     cfg: RegistrationConfig,
-) -> list[_Copies]:
+    guide: tuple[np.ndarray, float] | None = None,
+) -> tuple[list[_Copies], _Copies | None]:
     """Starting points for :func:`_refine_copies` from a single-copy fit ``pose`` (px), which
-    may lie on either copy or between them.
+    may lie on either copy or between them, and with ``guide`` the start where the array says
+    the other copy lies (:func:`_guided_start`; None without ``guide`` or where it finds none).
 
     Copies further apart than their edges' width: the strongest peak of
     :func:`_shift_surface` is taken as one copy and refined alone; with its edges masked
@@ -626,6 +628,7 @@ def _copy_starts(
     tables = _surface_tables(pose, sfield, sparse, classes, sg.t)
     surface, widths = _shift_surface(tables, sg)
     starts = []
+    own_masked = None  # the surface with the fit's own edges masked
     peaks = _surface_peaks(surface, widths, sg.grid, 1)
     if peaks:
         v, _, h = peaks[0]
@@ -636,6 +639,8 @@ def _copy_starts(
             )
             one_tables = _surface_tables(one, sfield, sparse, classes, sg.t)
         masked, masked_hw = _shift_surface(_masked_tables(one_tables, sg.t, one_hw), sg)
+        if one is pose:
+            own_masked = masked
         if float(masked.max()) >= _MIN_MASKED_RATIO * float(surface.max()):
             for shift, _, _ in _surface_peaks(masked, masked_hw, sg.grid, 1 if lines else 2, min_shift_px=2.0):
                 starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
@@ -643,27 +648,22 @@ def _copy_starts(
         shift, explained = _line_widening(pose, half_width, sfield, sparse)
         if math.hypot(*shift) >= _MIN_WIDENING_PX and explained >= _MIN_WIDENING_EXPLAINED:
             starts.append(_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))))
-    return starts
+    if guide is None:
+        return starts, None
+    if own_masked is None:
+        own_masked, _ = _shift_surface(_masked_tables(tables, sg.t, half_width), sg)
+    return starts, _guided_start(pose, half_width, own_masked, sg, guide)
 
 
 def _guided_start(
-    pose: CameraPose,
-    half_width: float,
-    sfield: np.ndarray,
-    model: WallModel,
-    classes: tuple[float, ...],
-    guide: tuple[np.ndarray, float],
+    pose: CameraPose, half_width: float, masked: np.ndarray, sg: _SurfaceGrid, guide: tuple[np.ndarray, float],
 ) -> _Copies | None:
     """A start for :func:`_refine_copies` where the array outside the entry says the other copy
     lies: ``guide`` is the image normal of the insertion axis and the array's offset (px) along
-    it from ``pose``'s axis. The best shift of :func:`_shift_surface`, with the fit's own edges
-    masked, whose move across the axis is the array's (within :data:`_GUIDE_TOL_PX` or a
-    quarter of it); None when no such shift shows any edges."""
+    it from ``pose``'s axis. The best shift of ``masked`` (the :func:`_shift_surface` of ``sg``
+    with the fit's own edges masked) whose move across the axis is the array's (within
+    :data:`_GUIDE_TOL_PX` or a quarter of it); None when no such shift shows any edges."""
     normal, offset = guide
-    sparse = model.subsample(2.0 / pose.px_per_mm)
-    sg = _surface_grid(_MAX_PARALLAX_MM * pose.px_per_mm + 2.0, classes)
-    tables = _surface_tables(pose, sfield, sparse, classes, sg.t)
-    masked, _ = _shift_surface(_masked_tables(tables, sg.t, half_width), sg)
     gx, gy = np.meshgrid(sg.grid, sg.grid)  # x = grid[column], y = grid[row]
     band = (np.abs(normal[0] * gx + normal[1] * gy - offset) <= max(_GUIDE_TOL_PX, 0.25 * abs(offset))) & (
         np.hypot(gx, gy) >= 2.0)
@@ -752,7 +752,7 @@ def doubled_walls(
     :data:`_MIN_PARALLAX_MM`, or that are the two ridges of a wall blurred along the shift
     (:func:`_blur_ratio`), are taken for single walls. With ``guide`` (see
     :func:`_guided_start`) and ``where_array``, the start where the array says the other copy
-    lies is tried too; it needs only a second copy that shows (:func:`_second_shows`)
+    lies (:func:`_copy_starts`) is tried too; it needs only a second copy that shows (:func:`_second_shows`)
     and the array nearer its axis than the first's
     (:func:`~tympani.vision.registration.axis.nearer_second_copy`). Returns the copies and the
     second copy's relative contrast (:func:`_copy_contrast`).
@@ -762,17 +762,16 @@ def doubled_walls(
     fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=_MAX_PARALLAX_MM * pose.px_per_mm)
     single = _copy_support(_Copies(pose, half_width, (0.0, 0.0)), layers, coarse, classes)
-    starts = [(start, False) for start in _copy_starts(pose, half_width, edges.signed, fine, classes, cfg)]
-    guided = _guided_start(pose, half_width, edges.signed, fine, classes, guide) if guide is not None else None
-    if guided is not None and where_array is not None:
-        starts.append((guided, True))
+    plain, guided = _copy_starts(pose, half_width, edges.signed, fine, classes, cfg,
+                                 guide if where_array is not None else None)
+    starts = [(start, False) for start in plain] + ([(guided, True)] if guided is not None else [])
     best: tuple[float, _Copies, bool] | None = None
     for start, by_array in starts:
         copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
         support = _copy_support(copies, layers, coarse, classes)
-        if by_array:  # where_array is given
-            plausible = _second_shows(copies, support, layers, coarse, classes) and nearer_second_copy(*where_array(copies.pose, copies.shift),
-                                                                       copies.pose.px_per_mm)
+        if by_array:  # only with where_array
+            plausible = (_second_shows(copies, support, layers, coarse, classes)
+                         and nearer_second_copy(*where_array(copies.pose, copies.shift), copies.pose.px_per_mm))
         else:
             plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
                 where_array is not None and second_copy_is_the_wall(*where_array(copies.pose, copies.shift),
