@@ -596,7 +596,7 @@ def test_doubled_walls_whose_far_copy_is_stronger_register_on_the_arrays_axis():
 def test_a_faint_true_copy_is_found_where_the_array_lies():
     """The wall copy the array runs in seen faintly through the plate (blurred, sigma 1.5 px, at a
     third of the far copy's contrast, noise 6 grey levels): its edges alone do not pass for a
-    second copy, so the fit sits on the far copy with the array 3-9 px off its axis. Where the
+    second copy, so the fit sits on the far copy with the array 4-9 px off its axis. Where the
     array says, the other copy is sought and taken when its edges stand out from the same shift
     turned. Eight views register on the true copy (measured: centre median 0.37 px, max 1.97;
     scale max 0.25 %), flagged doubled; before, four sat on the far copy (4.5-5 px off)."""
