@@ -92,7 +92,7 @@ def test_too_few_frames_for_a_line_are_checked_for_order() -> None:
     assert rows[1]["reason"] == ("kinematics: depth 9.00 mm and 1.20 mm in frame 2 cannot both hold (the insertion "
                                  "only goes in; too few frames to tell which is misread)")
     assert math.isnan(rows[2]["theta_tip"]) and rows[0]["theta_tip"] == 1.0
-    assert note.startswith("4 frame(s) marked not ok: with 5 frames measured")
+    assert note.startswith("4 frame(s) marked not ok: with 5 frames with a depth, too few for the constant-speed check")
     for depths in ([1.0, 1.1, 5.0, 5.2, 12.0], [3.0, 2.6, 2.9, 3.3, 3.2], [2.0]):  # in order within 0.5 mm
         rows = _rows(t[: len(depths)], np.array(depths))
         assert flag_kinematics(rows) == ([], "") and all(r["ok"] for r in rows)

@@ -285,7 +285,7 @@ def _flag_order(rows: list[dict], seen: list[int], cfg: KinematicsConfig) -> tup
         runs.append(dict(first=int(row["frame"]), last=int(row["frame"]), frames=1, off_mm=round(float(d[k] - d[j]), 3)))
     note = ""
     if marked:
-        note = (f"{len(marked)} frame(s) marked not ok: with {len(seen)} frames measured, too few for the "
+        note = (f"{len(marked)} frame(s) marked not ok: with {len(seen)} frames with a depth, too few for the "
                 f"constant-speed check, their depths contradict each other (frames "
                 f"{', '.join(str(r['first']) for r in runs)})")
     return runs, note
