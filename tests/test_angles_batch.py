@@ -210,8 +210,8 @@ def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
-    """fill_rows (integer and half positions), interp_rows and _array_runs against np.interp
-    and _array_run row by row."""
+    """fill_rows (integer and half positions), interp_rows and _array_runs (with and without
+    metal bands) against np.interp and _array_run row by row."""
     rng = np.random.default_rng(seed)
     n_rows, n = 6, int(rng.integers(2, 30))
     for x in (np.arange(n, dtype=float), 4 * np.arange(n) + 1.5):
@@ -237,6 +237,10 @@ def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
     probe = probe if len(probe) else np.array([0])
     gap = float(rng.uniform(0.0, 4.0))
     np.testing.assert_array_equal(survey._array_runs(dark, probe, gap), [_array_run(d, probe, gap) for d in dark])
+    band = ~dark & (rng.random((n_rows, n)) < 0.6)
+    border = int(rng.integers(0, 3))
+    np.testing.assert_array_equal(survey._array_runs(dark, probe, gap, band, border),
+                                  [_array_run(d, probe, gap, b, border) for d, b in zip(dark, band)])
 
 
 
@@ -278,12 +282,31 @@ def test_ragged_distance_from_tip_equals_per_frame(seed: int) -> None:
         np.testing.assert_array_equal(rg.split(got)[b], expected)
 
 
-def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> int:
+def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.ndarray | None = None,
+               border: int = 2) -> int:
     """Reference for one row: last station of the dark run that starts in the probe stations,
-    bridging gaps of up to ``max_gap`` non-dark stations (-1 when no probe station is dark)."""
+    bridging gaps of up to ``max_gap`` stations that are neither dark nor in a stretch of
+    ``band`` stations with dark ones at most ``border`` stations before and after it; the run
+    ends on a dark station (-1 when no probe station is dark)."""
     first = probe[dark[probe]]
     if len(first) == 0:
         return -1
-    idx = np.flatnonzero(dark[first[0]:]) + first[0]
+    carry = dark.copy()
+    if band is not None:
+        n, i = len(band), 0
+        while i < n:
+            if not band[i]:
+                i += 1
+                continue
+            j = i
+            while j < n and band[j]:
+                j += 1  # the stretch is i .. j-1
+            before = any(dark[max(i - 1 - border, 0):i]) and i > 0
+            after = j < n and any(dark[j:j + border + 1])
+            if before and after:
+                carry[i:j] = True
+            i = j
+    idx = np.flatnonzero(carry[first[0]:]) + first[0]
     breaks = np.flatnonzero(np.diff(idx) - 1 > max_gap)
-    return int(idx[breaks[0]] if len(breaks) else idx[-1])
+    end = int(idx[breaks[0]] if len(breaks) else idx[-1])
+    return int(np.flatnonzero(dark[: end + 1])[-1])

@@ -133,6 +133,13 @@ class MeasureConfig:
     max_gap_mm : float
         Longest stretch (mm) along the array that may look like fluid (a metal band as bright
         as the fluid) without ending it.
+    band_level : float
+        Brightness above the fluid, as a share (dimensionless) of the fluid's level, from which
+        a station is a metal band brighter than the fluid: such stations, joined to the array's
+        body, carry its run whatever their length.
+    band_width_mm : float
+        Widest (mm) such a bright stretch across the channel may be to be a band: the array's
+        base with a margin for blur; a bubble's bright inside is wider.
     min_contrast : float
         Smallest fluid-minus-array difference (grey levels) of a usable frame.
     gap_smooth_mm : float
@@ -211,6 +218,8 @@ class MeasureConfig:
     bubble_rim_mm: float = 0.2
     bubble_track_mm: float = 0.6
     max_gap_mm: float = 0.8
+    band_level: float = 0.15
+    band_width_mm: float = 1.5
     min_contrast: float = 18.0
     gap_smooth_mm: float = 0.4
     outlier_px: float = 1.5

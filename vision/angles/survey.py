@@ -165,22 +165,49 @@ def _array_ratio_low(
     return np.fmin(every, _array_ratios(darkest, brightest, steepest, fluid, entry, min_count))
 
 
-def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float) -> np.ndarray:
+def _attached(band: np.ndarray, dark: np.ndarray, border: int) -> np.ndarray:
+    """Stations of ``band`` (shape (B, n)) in an unbroken stretch of band stations with a dark
+    station at most ``border`` stations before and after it: a metal band lies between two
+    stretches of the array's body (its borders blurred over a few stations), a glint or a
+    bubble's halo out in the fluid does not."""
+    n_rows, n = band.shape
+    at = np.arange(n)
+    far = n + border + 1
+    last_dark = np.maximum.accumulate(np.where(dark, at, -far), axis=1)
+    next_dark = np.minimum.accumulate(np.where(dark, at, 2 * far)[:, ::-1], axis=1)[:, ::-1]
+    # each station's band stretch: its first station and the first station after it
+    start = np.maximum.accumulate(np.where(band, -1, at), axis=1) + 1
+    stop = np.minimum.accumulate(np.where(band, n, at)[:, ::-1], axis=1)[:, ::-1]
+    before = np.take_along_axis(last_dark, np.maximum(start - 1, 0), axis=1)
+    after = np.take_along_axis(next_dark, np.minimum(stop, n - 1), axis=1)
+    return band & (start > 0) & (start - before - 1 <= border) & (stop < n) & (after - stop <= border)
+
+
+def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.ndarray | None = None,
+                border: int = 2) -> np.ndarray:
     """Per row (frame) of ``dark``, shape (B, n), the last station of
     the dark run that starts at the first dark probe station, bridging gaps up to ``max_gap``
     stations (−1 where no probe station is dark).
 
     The run ends at the first dark station from its start whose next dark station is more
-    than ``max_gap`` stations away, or that has none.
+    than ``max_gap`` stations away, or that has none. Stations of ``band`` (shape (B, n), a
+    metal band brighter than the fluid) carry the run like dark ones where they join a dark
+    station (:func:`_attached`, within ``border`` stations), but it still ends on a dark station:
+    a band longer than ``max_gap`` does not end the array.
     """
     n_rows, n = dark.shape
     at = np.arange(n)
+    carry = dark if band is None else dark | _attached(band, dark, border)
     in_probe = dark[:, probe]
     start = np.where(in_probe.any(axis=1), probe[in_probe.argmax(axis=1)], n)
-    nxt = np.full((n_rows, n), n)  # the next dark station after each station (n: none)
-    nxt[:, :-1] = np.minimum.accumulate(np.where(dark, at, n)[:, :0:-1], axis=1)[:, ::-1]
-    ends = dark & (at >= start[:, None]) & ((nxt == n) | (nxt - at - 1 > max_gap))
-    return np.where(start < n, ends.argmax(axis=1), -1)
+    nxt = np.full((n_rows, n), n)  # the next carrying station after each station (n: none)
+    nxt[:, :-1] = np.minimum.accumulate(np.where(carry, at, n)[:, :0:-1], axis=1)[:, ::-1]
+    ends = carry & (at >= start[:, None]) & ((nxt == n) | (nxt - at - 1 > max_gap))
+    end = ends.argmax(axis=1)
+    if band is not None:  # back to the run's last dark station
+        last_dark = np.maximum.accumulate(np.where(dark, at, -1), axis=1)
+        end = last_dark[np.arange(n_rows), end]
+    return np.where(start < n, end, -1)
 
 
 def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | FrameMeasurement]:
@@ -232,7 +259,13 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     rho2 = _array_ratio_low(darkest, brightest, steepest, fluid_c, view_c, entry_c, min_beside)
     contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
     dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
-    tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step)).tolist()
+    # a metal band: brighter than the fluid, and no wider than the array (a bubble's bright
+    # inside, against the tip, is wider)
+    lit = (coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]
+    across_px = np.hypot(np.diff(plan.coarse_x, axis=0), np.diff(plan.coarse_y, axis=0)).mean(axis=0)
+    narrow = lit.sum(axis=1) * across_px <= cfg.band_width_mm * float(plan.pose.px_per_mm)
+    band = lit.any(axis=1) & narrow & view_c
+    tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step), band, _band_border_c(cfg, step)).tolist()
     out: list[Survey | FrameMeasurement] = []
     for b in range(n_rows):
         if not rho1[b] == rho1[b] or not rho2[b] == rho2[b]:
