@@ -261,10 +261,9 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
     # a metal band: brighter than the fluid, and no wider than the array (a bubble's bright
     # inside, against the tip, is wider)
-    lit = (coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]
-    across_px = np.hypot(np.diff(plan.coarse_x, axis=0), np.diff(plan.coarse_y, axis=0)).mean(axis=0)
-    narrow = lit.sum(axis=1) * across_px <= cfg.band_width_mm * float(plan.pose.px_per_mm)
-    band = lit.any(axis=1) & narrow & view_c
+    lit = ((coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]).sum(axis=1)
+    across_mm = sa * float(plan.u[1] - plan.u[0]) * plan.half_mm[::sa]  # the coarse offsets' spacing
+    band = (lit > 0) & (lit * across_mm <= cfg.band_width_mm) & view_c
     tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step), band, _band_border_c(cfg, step)).tolist()
     out: list[Survey | FrameMeasurement] = []
     for b in range(n_rows):
