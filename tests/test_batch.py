@@ -24,7 +24,7 @@ from tympani.pipeline.extract import batch
 from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
-from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches
+from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches, flag_sparse
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -253,6 +253,45 @@ def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
     # off, and too few frames to judge
     assert flag_glitches(_angle_rows(tip, bot), 0.0) == 0
     assert flag_glitches(_angle_rows([1.0, 5.0, 1.0, 1.0], [1.0] * 4), 0.25) == 0
+
+
+def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
+    """Frames 2-17 span 16 frames: 8 measured (half) marks all of them, 9 none; a span under
+    ten frames, or a share of 0, is left alone; frames not ok before do not count."""
+    def rows(measured):
+        return [dict(frame=i, ok=i in measured, theta_tip=1.0, theta_bot=0.5, theta_con=0.5, reason="")
+                for i in range(20)]
+
+    half = {2, 4, 6, 8, 10, 12, 14, 17}
+    r = rows(half)
+    note = flag_sparse(r, 0.5)
+    assert note == ("8 frame(s) marked not ok: video mostly unread: 8 of the 16 frames from frame 2 to 17 "
+                    "measured (at most 50%)")
+    assert not any(x["ok"] for x in r) and math.isnan(r[2]["theta_con"])
+    assert r[4]["reason"].startswith("video mostly unread") and r[3]["reason"] == ""
+    for measured, share in ((half | {3}, 0.5), ({2, 4, 6, 8, 10}, 0.5), (half, 0.0), (set(), 0.5)):
+        r = rows(measured)
+        assert flag_sparse(r, share) == ""
+        assert sum(x["ok"] for x in r) == len(measured)
+
+
+def test_extract_video_marks_a_mostly_unread_video_and_says_so(tmp_path):
+    """Ten of 20 frames black (no array in view) and frame 2 too: 9 of the 19 frames from 0 to 18
+    are measured, and all of them are marked; --sparse-share 0 keeps them, and ten black frames
+    alone (10 of 19 measured) keep them too."""
+    from tympani.pipeline.cli import main
+
+    odd = tuple(range(1, 20, 2))
+    path = fakes.write_video(tmp_path / "s.mp4", n=20, dark=odd + (2,))
+    table, _ = extract_video(path, fakes.fake_config(), steps=STEPS)
+    assert not table["ok"].any()
+    assert table.loc[table["frame"] == 4, "reason"].item().startswith("video mostly unread: 9 of the 19 frames")
+    assert any("9 frame(s) marked not ok: video mostly unread" in w for w in table.attrs["warnings"])
+    assert main(["extract", str(path), "--out", str(tmp_path / "off"), "-q", "--sparse-share", "0"], steps=STEPS) == 0
+    assert pd.read_csv(tmp_path / "off" / "s.angles.csv")["ok"].sum() == 9
+    table, _ = extract_video(fakes.write_video(tmp_path / "t.mp4", n=20, dark=odd), fakes.fake_config(), steps=STEPS)
+    assert table["ok"].sum() == 10
+    assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--sparse-share", "1"]) == 2
 
 
 def test_window_medians_equal_the_clipped_windows_one_by_one():

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from tympani.pipeline.cli.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int,
+from tympani.pipeline.cli.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int, share,
                                speed_list)
 from tympani.vision.errors import InputError, is_input_error
 
@@ -73,6 +73,9 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--kinematics-tol", type=nonneg_float, default=0.5, metavar="MM",
                        help="mark frames not ok, in runs as well as alone, whose insertion depth lies this far (mm) "
                             "from the video's constant-speed insertion (0: never; default 0.5)")
+    group.add_argument("--sparse-share", type=share, default=0.5, metavar="S",
+                       help="mark all frames of a video not ok when no more than this share of the frames between "
+                            "its first and last measured one is measured (0: never; default 0.5)")
     group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
                        help="the electrode array's diameters in mm at its tip and its base (default 0.6,1.2)")
     group.add_argument("--calibration", metavar="JSON",
@@ -90,7 +93,7 @@ def _extract_config(args: argparse.Namespace):
         DEFAULT_ARRAY, tip_diameter_mm=args.array_diameters[0], base_diameter_mm=args.array_diameters[1])
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
                          glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
-                         calibration=calibration, array=array)
+                         sparse_share=args.sparse_share, calibration=calibration, array=array)
 
 
 def _vision_steps(args: argparse.Namespace):
@@ -467,7 +470,8 @@ def _run_run(args: argparse.Namespace) -> int:
     command = ["tympani", "run", "--manifest", args.manifest, "--out", args.out, "--workers", str(args.workers),
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
-               "--glitch-rad", str(args.glitch_rad), "--kinematics-tol", str(args.kinematics_tol)]
+               "--glitch-rad", str(args.glitch_rad), "--kinematics-tol", str(args.kinematics_tol),
+               "--sparse-share", str(args.sparse_share)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []

@@ -62,6 +62,14 @@ def nonneg_float(text: str) -> float:
     return value
 
 
+def share(text: str) -> float:
+    """A number in [0, 1) (a share that may be none)."""
+    value = _float(text)
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 0 and below 1, not {text}")
+    return value
+
+
 def fraction(text: str) -> float:
     """A number strictly between 0 and 1 (a coverage level or a probability)."""
     value = _float(text)

@@ -108,6 +108,11 @@ class ExtractConfig:
         deviations of the video's depths about it, if more) from the video's constant-speed
         insertion is marked not ok (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`), in runs as
         well as alone; 0 keeps every frame.
+    sparse_share : float
+        When no more than this share (0-1) of the frames from a video's first measured frame to its
+        last is measured (after the glitch and kinematics checks; spans of at least
+        :data:`~tympani.pipeline.extract.video.SPARSE_MIN_SPAN` frames), all of them are marked not ok
+        (:func:`~tympani.pipeline.extract.video.flag_sparse`); 0 keeps every frame.
     calibration : vision.frames.LensCalibration or None
         The camera's lens. Frames are undistorted with it (:func:`tympani.vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole
@@ -130,6 +135,7 @@ class ExtractConfig:
     decoder_threads: int | None = None
     glitch_rad: float = 0.25
     kinematics_tol_mm: float = 0.5
+    sparse_share: float = 0.5
     calibration: LensCalibration | None = None
 
     def __post_init__(self) -> None:
@@ -144,6 +150,8 @@ class ExtractConfig:
             raise ValueError(f"glitch_rad must be >= 0 rad, not {self.glitch_rad!r}")
         if not self.kinematics_tol_mm >= 0:
             raise ValueError(f"kinematics_tol_mm must be >= 0 mm, not {self.kinematics_tol_mm!r}")
+        if not 0.0 <= self.sparse_share < 1.0:
+            raise ValueError(f"sparse_share must be in [0, 1), not {self.sparse_share!r}")
         if not self.measure_batch_mb > 0:
             raise ValueError(f"measure_batch_mb must be > 0, not {self.measure_batch_mb!r}")
         if not (self.recheck_factor >= 1.0 and self.recheck_margin_px >= 0.0):

@@ -4,8 +4,8 @@
 measurement; :func:`extract_video` collects that stream into the angles table
 (docs/file-formats.md), then goes back over the frames seen after a camera move but before a
 check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_glitches`) and
-frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`),
-and pools how wide the array looks (:func:`array_width`).
+frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`)
+and the frames of a video mostly unread (:func:`flag_sparse`), and pools how wide the array looks (:func:`array_width`).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ __all__ = [
     "moves_to_go_over",
     "remeasure_after_moves",
     "flag_glitches",
+    "flag_sparse",
     "array_width",
 ]
 
@@ -127,6 +128,9 @@ def extract_video(
         runs, note = flag_kinematics(rows, KinematicsConfig(tol_mm=cfg.kinematics_tol_mm))
         if note:
             notes.append(note)
+    note = flag_sparse(rows, cfg.sparse_share)
+    if note:
+        notes.append(note)
     width = array_width(rows, cfg.array)
     if width["warning"]:
         notes.append(width["warning"])
@@ -452,6 +456,51 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     for j in np.flatnonzero(marked):
         rows[ok[j]].update(ok=False, reason=why[j], theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
     return int(marked.sum())
+
+
+# Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
+# to judge it: a short clip says little about how well its video reads.
+SPARSE_MIN_SPAN = 10
+
+
+def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN) -> str:
+    """Mark every measured frame not ok, in place, when few frames of the video were measured.
+
+    A video whose frames mostly fail the measurement or its checks is one whose look defeats
+    it (bubbles over the array, a faint array, heavy compression), and its few measured
+    frames are then often wrong in the same way, frame after frame, where neither the glitch
+    filter nor the kinematics check can tell (docs/validation.md: on the evaluation renderers,
+    a third of the frames kept in videos measured on at most half their frames were grossly
+    wrong, under 1 % in the others).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, ``reason``, angles in rad); changed in
+        place.
+    max_share : float
+        The video's frames are marked when no more than this share (0-1) of the frames from its
+        first measured frame to its last is measured; 0 or less does nothing.
+    min_span : int
+        Videos whose measured frames span fewer frames are left alone.
+
+    Returns
+    -------
+    str
+        A warning naming the count, or "" when nothing was marked.
+    """
+    frames = [int(r["frame"]) for r in rows if r["ok"]]
+    if max_share <= 0 or not frames:
+        return ""
+    span = max(frames) - min(frames) + 1
+    if span < min_span or len(frames) > max_share * span:
+        return ""
+    why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {min(frames)} to "
+           f"{max(frames)} measured (at most {max_share:.0%})")
+    for r in rows:
+        if r["ok"]:
+            r.update(ok=False, reason=why, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
+    return f"{len(frames)} frame(s) marked not ok: {why}"
 
 
 def measured_counts(path: str | os.PathLike) -> tuple[int, int] | None:
