@@ -99,6 +99,39 @@ def with_compact(brights: list[np.ndarray], step_mm: float, offset_mm: np.ndarra
     return out
 
 
+def _chain_start(k: int, far: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, h: np.ndarray,
+                 compact: np.ndarray, reach: float) -> tuple[int, int]:
+    """The first bubble of a chain that ends with bubble ``k``, and the thickness (stations) of
+    the rim beyond its interior.
+
+    Bubbles touching one another show two rims between their interiors; a bubble-like
+    interior (:func:`_compact`) that ends no more than ``reach`` stations before the next
+    bubble's begins, across the same offsets, is one more bubble of the chain, where a band
+    would have the array's body, longer than two rims, between it and a bubble ahead of the
+    tip. Its own rim is taken as half the dark stretch between the two.
+
+    Parameters
+    ----------
+    k : int
+        A bubble's interior (component).
+    far : int
+        Thickness (stations) of the rim beyond its interior.
+    x, w, y, h : ndarray of int
+        Bounding boxes (first station, stations, first offset, offsets) of all components.
+    compact : ndarray of bool
+        Which components could be a bubble's interior.
+    reach : float
+        Longest dark stretch (stations) between two interiors of a chain.
+    """
+    while True:
+        gap = x[k] - (x + w)
+        prev = np.flatnonzero(compact & (gap >= 0) & (gap <= reach) & (y < y[k] + h[k]) & (y[k] < y + h))
+        if not len(prev):
+            return k, far
+        j = int(prev[np.argmin(gap[prev])])
+        k, far = j, int(gap[j]) // 2
+
+
 def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
                 step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
     """Where the array ends when an air bubble sits at or ahead of its tip.
@@ -110,9 +143,11 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     compact, round component of the bright pixels of the channel's interior. A metal band can be
     enclosed too (by the array's shaded edges) but is a rectangle no wider than the array, with
     the array's body beyond it; a bubble's interior is round and either wider than the array or
-    followed, along the array's path, by no more than a thin rim. The array ends before the
-    first such component on its path, less the rim's thickness (that of the rim beyond the
-    interior): at the last dark station before it.
+    followed, along the array's path, by no more than a thin rim. Bubbles touching in a chain
+    show only two rims between their interiors, so a band-like interior that ends that close
+    before a bubble's is a bubble too (:func:`_chain_start`). The array ends before the first
+    bubble on its path, less the rim's thickness (that of the rim beyond the interior): at the
+    last dark station before it.
 
     Parameters
     ----------
@@ -160,6 +195,7 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
         if wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm:
             continue  # as narrow as a band, and array beyond it
+        k, far = _chain_start(k, far, x, w, y, h, compact, cfg.bubble_chain * cfg.bubble_rim_mm / step_mm)
         # the rim before it, and any array it touches: the longest dark run that ends where the
         # interior begins, over the interior's rows
         inner = labels[y[k] : y[k] + h[k]] == k + 1

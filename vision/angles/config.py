@@ -125,6 +125,10 @@ class MeasureConfig:
     bubble_rim_mm : float
         Longest dark stretch (mm) along the array's path beyond a narrower one for it to be a
         bubble's rim rather than more array.
+    bubble_chain : float
+        Bubbles touching in a chain show two rims between their interiors: a dark stretch up to
+        this many times ``bubble_rim_mm`` that ends at another bubble-like interior is taken for
+        two rims (an array's body between its bands is longer).
     bubble_aspect : float
         Largest ratio (dimensionless) of the longer to the shorter side of that box.
     bubble_track_mm : float
@@ -216,6 +220,7 @@ class MeasureConfig:
     bubble_aspect: float = 2.5
     bubble_wider: float = 1.15
     bubble_rim_mm: float = 0.2
+    bubble_chain: float = 1.5
     bubble_track_mm: float = 0.6
     max_gap_mm: float = 0.8
     band_level: float = 0.15
