@@ -726,6 +726,27 @@ def test_a_chain_of_bubbles_at_the_tip_is_not_array() -> None:
     assert np.median(tip_err) <= 0.015 and max(tip_err) <= 0.17, np.round(tip_err, 3)
 
 
+def test_one_edge_with_dark_on_to_the_far_wall_is_not_used() -> None:
+    """Stations of a 0.6 mm array along the outer wall (half-width 0.6 mm, wall margin to 0.5
+    mm): where only the inner edge shows and the dark goes on from it to the outer wall, the
+    station is used if that dark is the array's width (inner edge at -0.05 mm) or a little
+    more, and not if it is as wide again (a bubble's rim or a shadow joined to the array, inner
+    edge at -0.4 mm): which side of that dark the array takes is unknown. The mirror case (only
+    the outer edge, dark on to the inner wall) likewise; with both edges the station is used."""
+    from tympani.vision.angles.centreline import _centre_offsets
+    from tympani.vision.geometry import DEFAULT_ARRAY
+
+    nan = float("nan")
+    v_in = np.array([-0.05, 0.0, -0.4, nan, nan, -0.4])
+    v_out = np.array([nan, nan, nan, 0.05, 0.4, 0.2])
+    ok_in, ok_out = np.isfinite(v_in), np.isfinite(v_out)
+    s = np.full(6, 0.5)  # 0.5 mm from the tip: radius 0.306 mm
+    v_c, used, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(6), DEFAULT_ARRAY, 0.5, 0.07,
+                                        np.full(6, 0.5))
+    assert used.tolist() == [True, True, False, True, False, True]
+    assert v_c[0] == pytest.approx(-0.05 + radius[0]) and v_c[3] == pytest.approx(0.05 - radius[3])
+
+
 def test_contact_start_holds_under_motion_blur_and_compression() -> None:
     """Blur along the insertion (3-8 px) and JPEG quality 30-60 widen the measured gap along the
     whole array by some hundredths of a millimetre, so a contact run read against the bare

@@ -51,6 +51,7 @@ def _centre_offsets(
     array: ElectrodeArray,
     cap_min: float,
     tol_mm: float,
+    clear_mm: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The array's centre offset at each station from its edges and its known shape.
 
@@ -70,7 +71,14 @@ def _centre_offsets(
         Stations closer to the tip than this fraction of the tip radius are not used.
     tol_mm : float
         How much narrower (mm) than expected the two edges may be before the station is
-        taken to be cut by a band's border (at least 30 % of the half-width is allowed).
+        taken to be cut by a band's border (at least 30 % of the half-width is allowed), and
+        wider before it is taken to be crowded.
+    clear_mm : ndarray, shape (n,)
+        Offset (mm) of the last place clear of each wall (the half-width less the wall
+        margin). Where only one edge shows and the dark goes on from it to the other wall's
+        margin, wider than the array by as much, something dark lies beside the array (a
+        bubble's rim, a shadow, a doubled wall line) and which side of that dark the array
+        takes is unknown: the station is not used.
 
     Returns
     -------
@@ -88,9 +96,12 @@ def _centre_offsets(
     r_tip = 0.5 * array.tip_diameter_mm
     body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
     visible = body_half * stretch
-    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - np.maximum(tol_mm, 0.3 * visible))
-    use_in = ok_in & ~cut
-    use_out = ok_out & ~ok_in & ~cut
+    slack = np.maximum(tol_mm, 0.3 * visible)
+    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - slack)
+    crowded = (ok_in & np.isnan(v_out) & (clear_mm - v_in > 2.0 * visible + slack)) | (
+        ok_out & np.isnan(v_in) & (v_out + clear_mm > 2.0 * visible + slack))
+    use_in = ok_in & ~cut & ~crowded
+    use_out = ok_out & ~ok_in & ~cut & ~crowded
     v_c = np.where(use_in, v_in + visible, v_out - visible)
     return v_c, (use_in | use_out) & (s >= cap_min * r_tip), radius
 
@@ -113,7 +124,8 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
                                   for name in ("v_in", "v_out", "ok_in", "ok_out"))
     # pass 1: distance from the tip along the backbone, array parallel to the channel
     s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
-    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol)
+    clear = plan.half_mm[station] - cfg.wall_margin_px / ppm
+    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol, clear)
     live = np.flatnonzero(rg.count(measured) >= 3)
     if not len(live):
         return out
@@ -157,7 +169,8 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     # pass 2: distance along the measured centre line, slant across the channel -> gaps
     point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
     s = distance_from_tip_ragged(point + centre[:, None] * normal, tip_mm, tip_f, rg)
-    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol)
+    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol,
+                                             plan.half_mm[station] - cfg.wall_margin_px / ppm)
     before = local <= tip_f[row]
     measured &= measured2 & before
     good = rg.count(measured) >= 3
