@@ -41,6 +41,26 @@ class CentreLine:
     width_ratio: float  # seen width over modelled width, median where both edges show (NaN: < 10 such)
 
 
+def _half_widths(s: np.ndarray, stretch: np.ndarray, array: ElectrodeArray) -> tuple[np.ndarray, np.ndarray]:
+    """The array's half-width across the channel (mm; its radius, narrower on the rounded tip,
+    times ``stretch``) and its radius (mm) at distances ``s`` (mm) from the tip."""
+    length = array.length_mm  # ElectrodeArray.radius, without its Python-level overhead
+    s_in = np.minimum(np.maximum(s, 0.0), length)
+    radius = 0.5 * (array.tip_diameter_mm + (array.base_diameter_mm - array.tip_diameter_mm) * s_in / length)
+    r_tip = 0.5 * array.tip_diameter_mm
+    body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
+    return body_half * stretch, radius
+
+
+def _seen_ratio(v_in: np.ndarray, v_out: np.ndarray, both: np.ndarray, visible: np.ndarray, rg: Ragged) -> np.ndarray:
+    """Each frame's median width between the two edges over the modelled width ``2 visible``,
+    over the stations ``both`` where both show, where at least ten do (at least 1; 1 elsewhere):
+    an array wider than modelled is not crowded by its own width."""
+    ratio = np.where(both, (v_out - v_in) / np.where(both, 2.0 * visible, 1.0), 0.0)
+    median = row_quantiles(rg.pad(ratio, 0.0), rg.pad(both, False), 0.5)
+    return np.where(rg.count(both) >= 10, np.maximum(median, 1.0), 1.0)
+
+
 def _centre_offsets(
     v_in: np.ndarray,
     v_out: np.ndarray,
@@ -52,6 +72,7 @@ def _centre_offsets(
     cap_min: float,
     tol_mm: float,
     clear_mm: np.ndarray,
+    widen: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The array's centre offset at each station from its edges and its known shape.
 
@@ -75,10 +96,14 @@ def _centre_offsets(
         wider before it is taken to be crowded.
     clear_mm : ndarray, shape (n,)
         Offset (mm) of the last place clear of each wall (the half-width less the wall
-        margin). Where only one edge shows and the dark goes on from it to the other wall's
-        margin, wider than the array by as much, something dark lies beside the array (a
-        bubble's rim, a shadow, a doubled wall line) and which side of that dark the array
-        takes is unknown: the station is not used.
+        margin). Where the dark is wider than the array by as much as ``tol_mm`` allows
+        narrower (between the two edges, or from the one edge that shows on to the other
+        wall's margin), something dark lies beside the array (a bubble's rim, a shadow, a
+        doubled wall line) and which side of that dark the array takes is unknown: the
+        station is not used.
+    widen : ndarray, shape (n,)
+        How much wider (factor, at least 1) than modelled the array is seen in the station's
+        frame (:func:`_seen_ratio`); the dark is compared with that width.
 
     Returns
     -------
@@ -90,20 +115,16 @@ def _centre_offsets(
     radius : ndarray, shape (n,)
         The array's radius (mm) at each station.
     """
-    length = array.length_mm  # ElectrodeArray.radius, without its Python-level overhead
-    s_in = np.minimum(np.maximum(s, 0.0), length)
-    radius = 0.5 * (array.tip_diameter_mm + (array.base_diameter_mm - array.tip_diameter_mm) * s_in / length)
-    r_tip = 0.5 * array.tip_diameter_mm
-    body_half = np.where(s < r_tip, np.sqrt(np.maximum(r_tip**2 - (r_tip - s) ** 2, 0.0)), radius)
-    visible = body_half * stretch
+    visible, radius = _half_widths(s, stretch, array)
     slack = np.maximum(tol_mm, 0.3 * visible)
     cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - slack)
-    crowded = (ok_in & np.isnan(v_out) & (clear_mm - v_in > 2.0 * visible + slack)) | (
-        ok_out & np.isnan(v_in) & (v_out + clear_mm > 2.0 * visible + slack))
+    wide = 2.0 * visible * widen + slack
+    crowded = (ok_in & np.isnan(v_out) & (clear_mm - v_in > wide)) | (
+        ok_out & np.isnan(v_in) & (v_out + clear_mm > wide)) | (ok_in & ok_out & (v_out - v_in > wide))
     use_in = ok_in & ~cut & ~crowded
     use_out = ok_out & ~ok_in & ~cut & ~crowded
     v_c = np.where(use_in, v_in + visible, v_out - visible)
-    return v_c, (use_in | use_out) & (s >= cap_min * r_tip), radius
+    return v_c, (use_in | use_out) & (s >= cap_min * 0.5 * array.tip_diameter_mm), radius
 
 
 def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine | str]:
@@ -125,14 +146,18 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     # pass 1: distance from the tip along the backbone, array parallel to the channel
     s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
     clear = plan.half_mm[station] - cfg.wall_margin_px / ppm
-    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol, clear)
+    widen = _seen_ratio(v_in, v_out, ok_in & ok_out & (s >= plan.r_tip_mm), _half_widths(s, np.ones(len(s)), array)[0],
+                        rg)[rg.row]
+    v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol, clear,
+                                       widen)
     live = np.flatnonzero(rg.count(measured) >= 3)
     if not len(live):
         return out
     if len(live) < len(edges):  # the others have no centre line
         sub, rg = rg.subset(live)
         lo, station = lo[live], station[sub]
-        v_in, v_out, ok_in, ok_out, v_c, measured = (a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured))
+        v_in, v_out, ok_in, ok_out, v_c, measured, widen = (a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured,
+                                                                               widen))
     n, row, local = rg.n, rg.row, rg.local
     # outliers: off their neighbours' running median by more than 3 robust SDs (and tol)
     at = np.flatnonzero(measured)
@@ -170,7 +195,7 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
     s = distance_from_tip_ragged(point + centre[:, None] * normal, tip_mm, tip_f, rg)
     v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol,
-                                             plan.half_mm[station] - cfg.wall_margin_px / ppm)
+                                             plan.half_mm[station] - cfg.wall_margin_px / ppm, widen)
     before = local <= tip_f[row]
     measured &= measured2 & before
     good = rg.count(measured) >= 3
