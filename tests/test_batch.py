@@ -273,6 +273,18 @@ def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
         r = rows(measured)
         assert flag_sparse(r, share) == ""
         assert sum(x["ok"] for x in r) == len(measured)
+    # frames without a registration do not count: 8 of the 14 frames with one is more than half
+    r = rows(half)
+    for x in r:
+        if x["frame"] in (3, 5):
+            x["reason"] = "registration lost: the check at frame 3 failed"
+    assert flag_sparse(r, 0.5) == "" and sum(x["ok"] for x in r) == 8
+    r = rows(half - {14})  # 7 of the 14 frames with a registration: half
+    for x in r:
+        if x["frame"] in (3, 5):
+            x["reason"] = "registration lost: the check at frame 3 failed"
+    assert flag_sparse(r, 0.5).endswith("7 of the 14 frames from frame 2 to 17 with a registration (2 without) "
+                                         "measured (at most 50%)")
 
 
 def test_extract_video_marks_a_mostly_unread_video_and_says_so(tmp_path):

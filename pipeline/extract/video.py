@@ -480,7 +480,9 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
         place.
     max_share : float
         The video's frames are marked when no more than this share (0-1) of the frames from its
-        first measured frame to its last is measured; 0 or less does nothing.
+        first measured frame to its last is measured; 0 or less does nothing. Frames without a
+        registration (reason ``registration lost: ...``: the camera moved or the view was
+        blocked) say nothing about how the video reads and are not counted.
     min_span : int
         Videos whose measured frames span fewer frames are left alone.
 
@@ -492,11 +494,14 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
     frames = [int(r["frame"]) for r in rows if r["ok"]]
     if max_share <= 0 or not frames:
         return ""
-    span = max(frames) - min(frames) + 1
+    first, last = min(frames), max(frames)
+    lost = sum(1 for r in rows if first <= int(r["frame"]) <= last and str(r.get("reason", "")).startswith(
+        "registration lost"))
+    span = last - first + 1 - lost
     if span < min_span or len(frames) > max_share * span:
         return ""
-    why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {min(frames)} to "
-           f"{max(frames)} measured (at most {max_share:.0%})")
+    why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {first} to {last}"
+           f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
     for r in rows:
         if r["ok"]:
             r.update(ok=False, reason=why, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
