@@ -738,13 +738,17 @@ def test_dark_wider_than_the_array_is_not_used() -> None:
     from tympani.vision.geometry import DEFAULT_ARRAY
 
     nan = float("nan")
-    v_in = np.array([-0.05, 0.0, -0.4, nan, nan, -0.4, -0.45])
-    v_out = np.array([nan, nan, nan, 0.05, 0.4, 0.2, 0.45])
-    ok_in, ok_out = np.isfinite(v_in), np.isfinite(v_out)
-    s = np.full(7, 0.5)  # 0.5 mm from the tip: radius 0.306 mm
-    v_c, used, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(7), DEFAULT_ARRAY, 0.5, 0.07,
-                                        np.full(7, 0.5), np.ones(7))
-    assert used.tolist() == [True, True, False, True, False, True, False]
+    v_in = np.array([-0.05, 0.0, -0.4, nan, nan, -0.4, -0.45, -0.4])
+    v_out = np.array([nan, nan, nan, 0.05, 0.4, 0.2, 0.45, 0.62])  # the last one found past the wall
+    ok_in, ok_out = np.isfinite(v_in), np.isfinite(v_out) & (v_out <= 0.6)
+    s = np.full(8, 0.5)  # 0.5 mm from the tip: radius 0.306 mm
+    v_c, used, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(8), DEFAULT_ARRAY, 0.5, 0.07,
+                                        np.full(8, 0.5), np.ones(8))
+    assert used.tolist() == [True, True, False, True, False, True, False, False]
+    # an array seen 50 % wider than modelled in its frame is not crowded by its own width
+    wider = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(8), DEFAULT_ARRAY, 0.5, 0.07, np.full(8, 0.5),
+                            np.full(8, 1.5))[1]
+    assert wider.tolist() == [True, True, True, True, True, True, True, True]
     assert v_c[0] == pytest.approx(-0.05 + radius[0]) and v_c[3] == pytest.approx(0.05 - radius[3])
 
 

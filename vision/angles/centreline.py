@@ -119,8 +119,8 @@ def _centre_offsets(
     slack = np.maximum(tol_mm, 0.3 * visible)
     cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - slack)
     wide = 2.0 * visible * widen + slack
-    crowded = (ok_in & np.isnan(v_out) & (clear_mm - v_in > wide)) | (
-        ok_out & np.isnan(v_in) & (v_out + clear_mm > wide)) | (ok_in & ok_out & (v_out - v_in > wide))
+    crowded = (ok_in & ~ok_out & (clear_mm - v_in > wide)) | (ok_out & ~ok_in & (v_out + clear_mm > wide)) | (
+        ok_in & ok_out & (v_out - v_in > wide))
     use_in = ok_in & ~cut & ~crowded
     use_out = ok_out & ~ok_in & ~cut & ~crowded
     v_c = np.where(use_in, v_in + visible, v_out - visible)
