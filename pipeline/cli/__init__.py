@@ -61,12 +61,24 @@ class Command:
 # --------------------------------------------------------------------------- helpers
 
 
-def _add_extract_options(parser: argparse.ArgumentParser) -> None:
+def _add_extract_options(parser: argparse.ArgumentParser, video_checks: bool = True) -> None:
+    """The registration and measurement options; with ``video_checks`` also those of the checks
+    run over a whole video's angles (glitches, kinematics, a video mostly unread)."""
     group = parser.add_argument_group("registration")
     group.add_argument("--recheck-every", type=nonneg_int, default=150, metavar="N",
                        help="check the registration every N frames, re-register if the camera moved (0: never; default 150)")
     group.add_argument("--register-frames", type=positive_int, default=5, metavar="N",
                        help="frames used for registration (default 5)")
+    if video_checks:
+        _add_video_check_options(group)
+    group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
+                       help="the electrode array's diameters in mm at its tip and its base (default 0.6,1.2)")
+    group.add_argument("--calibration", metavar="JSON",
+                       help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
+                            "the lens is taken out of registration, checks and measurement")
+
+
+def _add_video_check_options(group: Any) -> None:
     group.add_argument("--glitch-rad", type=nonneg_float, default=0.25, metavar="RAD",
                        help="mark a frame not ok when an angle lies this far (rad) from the running median of its "
                             "measured neighbours (0: never; default 0.25)")
@@ -76,11 +88,6 @@ def _add_extract_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--sparse-share", type=share, default=0.5, metavar="S",
                        help="mark all frames of a video not ok when no more than this share of the frames between "
                             "its first and last measured one is measured (0: never; default 0.5)")
-    group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
-                       help="the electrode array's diameters in mm at its tip and its base (default 0.6,1.2)")
-    group.add_argument("--calibration", metavar="JSON",
-                       help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
-                            "the lens is taken out of registration, checks and measurement")
 
 
 def _extract_config(args: argparse.Namespace):
@@ -91,9 +98,10 @@ def _extract_config(args: argparse.Namespace):
     calibration = LensCalibration.from_json(args.calibration) if args.calibration else None
     array = DEFAULT_ARRAY if args.array_diameters is None else replace(
         DEFAULT_ARRAY, tip_diameter_mm=args.array_diameters[0], base_diameter_mm=args.array_diameters[1])
+    checks = dict(glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
+                  sparse_share=args.sparse_share) if hasattr(args, "glitch_rad") else {}
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
-                         glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
-                         sparse_share=args.sparse_share, calibration=calibration, array=array)
+                         calibration=calibration, array=array, **checks)
 
 
 def _vision_steps(args: argparse.Namespace):
@@ -218,7 +226,7 @@ def _configure_annotate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--labels", metavar="CSV", help="labels CSV: frame,tip_x_px,tip_y_px,bot_x_px,bot_y_px")
     p.add_argument("--fps", type=positive_float, metavar="F", help="frame rate (frames/s) for folders of frames")
     p.add_argument("--trial", metavar="NAME", help="trial name for the output files (default: file stem)")
-    _add_extract_options(p)
+    _add_extract_options(p, video_checks=False)  # each frame's own measurement: no checks over the video
 
 
 def _run_annotate(args: argparse.Namespace) -> int:
@@ -570,7 +578,8 @@ COMMANDS: dict[str, Command] = {
         _configure_annotate,
         _run_annotate,
         "Draw the registered phantom and the measurement on chosen frames (PNG, optionally mp4), and compare "
-        "manual labels (--label / --labels, pixels) with the automatic angles.",
+        "manual labels (--label / --labels, pixels) with the automatic angles. Each frame shows its own "
+        "measurement: the checks 'extract' runs over a whole video (glitches, kinematics) are not applied.",
     ),
     "bench": Command(
         "throughput, per-stage time and memory figures",
