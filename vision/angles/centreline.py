@@ -1,8 +1,9 @@
 """Stage 3, the centre line: the array's centre offset, its tip and its gap to the outer wall.
 
-From the edges and the array's known shape (:func:`centre_line_batch`), with the checks that
-refuse a dark run that is not the array's (no edges near its end, edges not the array's width,
-a last stretch without the inner edge or crossing a wall).
+From the edges and the array's known shape (:func:`centre_line_batch`): stations where the dark
+is wider than the array (something dark joined to it) are not used, and checks refuse a dark run
+that is not the array's (no edges near its end, edges not the array's width, a last stretch
+without the inner edge or crossing a wall).
 """
 
 from __future__ import annotations
