@@ -53,13 +53,12 @@ def _half_widths(s: np.ndarray, stretch: np.ndarray, array: ElectrodeArray) -> t
     return body_half * stretch, radius
 
 
-def _seen_ratio(v_in: np.ndarray, v_out: np.ndarray, both: np.ndarray, visible: np.ndarray, rg: Ragged) -> np.ndarray:
-    """Each frame's median width between the two edges over the modelled width ``2 visible``,
-    over the stations ``both`` where both show, where at least ten do (at least 1; 1 elsewhere):
-    an array wider than modelled is not crowded by its own width."""
-    ratio = np.where(both, (v_out - v_in) / np.where(both, 2.0 * visible, 1.0), 0.0)
+def _width_ratio(v_in: np.ndarray, v_out: np.ndarray, both: np.ndarray, width: np.ndarray, rg: Ragged) -> np.ndarray:
+    """Each frame's median width between the two edges (mm) over the modelled ``width`` (mm),
+    over the stations ``both`` where both show; NaN where fewer than ten do."""
+    ratio = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
     median = row_quantiles(rg.pad(ratio, 0.0), rg.pad(both, False), 0.5)
-    return np.where(rg.count(both) >= 10, np.maximum(median, 1.0), 1.0)
+    return np.where(rg.count(both) >= 10, median, np.nan)
 
 
 def _centre_offsets(
@@ -104,7 +103,7 @@ def _centre_offsets(
         station is not used.
     widen : ndarray, shape (n,)
         How much wider (factor, at least 1) than modelled the array is seen in the station's
-        frame (:func:`_seen_ratio`); the dark is compared with that width.
+        frame (:func:`_width_ratio`, at least 1); the dark is compared with that width.
 
     Returns
     -------
@@ -147,8 +146,9 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     # pass 1: distance from the tip along the backbone, array parallel to the channel
     s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
     clear = plan.half_mm[station] - cfg.wall_margin_px / ppm
-    widen = _seen_ratio(v_in, v_out, ok_in & ok_out & (s >= plan.r_tip_mm), _half_widths(s, np.ones(len(s)), array)[0],
-                        rg)[rg.row]
+    # an array wider than modelled is not crowded by its own width
+    widen = np.fmax(_width_ratio(v_in, v_out, ok_in & ok_out & (s >= plan.r_tip_mm),
+                                 2.0 * _half_widths(s, np.ones(len(s)), array)[0], rg), 1.0)[rg.row]
     v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol, clear,
                                        widen)
     live = np.flatnonzero(rg.count(measured) >= 3)
@@ -157,8 +157,8 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     if len(live) < len(edges):  # the others have no centre line
         sub, rg = rg.subset(live)
         lo, station = lo[live], station[sub]
-        v_in, v_out, ok_in, ok_out, v_c, measured, widen = (a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured,
-                                                                               widen))
+        v_in, v_out, ok_in, ok_out, v_c, measured, clear, widen = (
+            a[sub] for a in (v_in, v_out, ok_in, ok_out, v_c, measured, clear, widen))
     n, row, local = rg.n, rg.row, rg.local
     # outliers: off their neighbours' running median by more than 3 robust SDs (and tol)
     at = np.flatnonzero(measured)
@@ -195,8 +195,8 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     # pass 2: distance along the measured centre line, slant across the channel -> gaps
     point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
     s = distance_from_tip_ragged(point + centre[:, None] * normal, tip_mm, tip_f, rg)
-    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol,
-                                             plan.half_mm[station] - cfg.wall_margin_px / ppm, widen)
+    v_c, measured2, radius = _centre_offsets(v_in, v_out, ok_in, ok_out, s, stretch, array, cfg.cap_min, tol, clear,
+                                             widen)
     before = local <= tip_f[row]
     measured &= measured2 & before
     good = rg.count(measured) >= 3
@@ -219,8 +219,7 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     keep = np.flatnonzero(good & ~bare & ~odd)
     if not len(keep):
         return out
-    seen = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
-    width_ratio = np.where(n_both >= 10, row_quantiles(rg.pad(seen, 0.0), rg.pad(both, False), 0.5), np.nan)
+    width_ratio = _width_ratio(v_in, v_out, both, width, rg)
     sub, part = rg.subset(keep)
     ok = measured[sub]
     (centre, gap), _ = smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
