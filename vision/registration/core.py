@@ -166,25 +166,24 @@ def register(
     guide = (axis_normal(pose, phantom), offset) if off_the_axis(offset, pose.px_per_mm) else None
     doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide)
     shift, contrast = (0.0, 0.0), float("nan")
+    reasons = _fit_failures(fit, cfg)
     if doubled is not None:
         copies, contrast = doubled
-        offset, delta = where_array(copies.pose, copies.shift)
-        if nearer_second_copy(offset, delta, copies.pose.px_per_mm):
+        copy_offset, delta = where_array(copies.pose, copies.shift)
+        swapped = nearer_second_copy(copy_offset, delta, copies.pose.px_per_mm)
+        if swapped:
             copies, contrast = copies.swapped(), 1.0 / contrast
-            offset = array_axis_offset(gray, copies.pose, phantom)
-        pose, half_width, shift = copies.pose, copies.half_width, copies.shift
-        sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
-        fit = wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, np.asarray(shift))
-    reasons = []
-    if fit.visible_fraction < cfg.min_visible_fraction:
-        reasons.append(f"only {fit.visible_fraction:.0%} of its walls would be in view")
-    if fit.inlier_fraction < cfg.min_inlier_fraction:
-        reasons.append(
-            f"only {fit.inlier_fraction:.0%} of its visible walls lie on edges of matching orientation "
-            f"(need {cfg.min_inlier_fraction:.0%})"
-        )
-    if fit.residual_px > cfg.max_residual_px:
-        reasons.append(f"median wall-to-edge distance {fit.residual_px:.1f} px (max {cfg.max_residual_px:.1f})")
+        sub = model.subsample(cfg.model_spacing_px / copies.pose.px_per_mm)
+        copies_fit = wall_fit_from(copies.pose, layers, sub, copies.half_width, cfg.inlier_tol_px,
+                                   np.asarray(copies.shift), copies.half_width2)
+        copies_reasons = _fit_failures(copies_fit, cfg)
+        if copies_reasons and not reasons:  # the single fit stands where the copies' fails
+            doubled, contrast = None, float("nan")
+        else:
+            pose, half_width, shift, fit, reasons = (copies.pose, copies.half_width, copies.shift, copies_fit,
+                                                     copies_reasons)
+            if swapped:
+                offset = array_axis_offset(gray, pose, phantom)
     if reasons:
         raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))
     registration = Registration(
@@ -208,6 +207,21 @@ def register(
     result = replace(registration, residual_px=wall_fit(frames[0], registration, phantom, cfg).residual_px)
     result._check_cache[key] = walls  # replace() starts with an empty cache
     return result
+
+
+def _fit_failures(fit: WallFit, cfg: RegistrationConfig) -> list[str]:
+    """Why a registration's :class:`WallFit` is not accepted (empty when it is)."""
+    reasons = []
+    if fit.visible_fraction < cfg.min_visible_fraction:
+        reasons.append(f"only {fit.visible_fraction:.0%} of its walls would be in view")
+    if fit.inlier_fraction < cfg.min_inlier_fraction:
+        reasons.append(
+            f"only {fit.inlier_fraction:.0%} of its visible walls lie on edges of matching orientation "
+            f"(need {cfg.min_inlier_fraction:.0%})"
+        )
+    if fit.residual_px > cfg.max_residual_px:
+        reasons.append(f"median wall-to-edge distance {fit.residual_px:.1f} px (max {cfg.max_residual_px:.1f})")
+    return reasons
 
 
 def check(gray: np.ndarray, registration: Registration, phantom: Phantom = DEFAULT_PHANTOM) -> float:

@@ -69,17 +69,26 @@ _MIN_GUIDED_EXCESS = 0.08
 
 @dataclass(frozen=True)
 class _Copies:
-    """Doubled walls: the first copy's pose, the wall lines' half width (px, as
-    :attr:`Registration.line_half_width_px`) and the second copy's image shift (px)."""
+    """Doubled walls: the first copy's pose, its wall lines' half width (px, as
+    :attr:`Registration.line_half_width_px`), the second copy's image shift (px) and the
+    second copy's half width (px; None: the first's). The copies may look different: one a
+    region boundary (half width 0), the other a line, or dark lines beside bright ones (half
+    widths of opposite sign)."""
 
     pose: CameraPose
     half_width: float
     shift: tuple[float, float]
+    second_half_width: float | None = None
+
+    @property
+    def half_width2(self) -> float:
+        """The second copy's half width (px)."""
+        return self.half_width if self.second_half_width is None else self.second_half_width
 
     def swapped(self) -> "_Copies":
         """The same walls with the copies' roles exchanged."""
         dx, dy = self.shift
-        return _Copies(_translated(self.pose, (dx, dy)), self.half_width, (-dx, -dy))
+        return _Copies(_translated(self.pose, (dx, dy)), self.half_width2, (-dx, -dy), self.half_width)
 
 
 @dataclass(frozen=True)
@@ -127,7 +136,7 @@ def _translated(pose: CameraPose, shift: tuple[float, float] | np.ndarray) -> Ca
 
 
 def _copy_offsets(
-    delta: np.ndarray, half_width: float, sign: float, lines: bool
+    delta: np.ndarray, half_width: float, sign: float, lines: bool, half_width2: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where one polarity class's edge of each copy is expected, and whether it shows.
 
@@ -136,7 +145,9 @@ def _copy_offsets(
     delta : ndarray, shape (n,)
         Offset (px) of the second copy along each wall normal.
     half_width : float
-        Half width (px) of the wall lines (< 0: bright lines).
+        Half width (px) of the first copy's wall lines (< 0: bright lines).
+    half_width2 : float, optional
+        The second copy's (default: ``half_width``).
     sign : float
         The class: +1 for edges whose gradient points out of the channel, -1 into it.
     lines : bool
@@ -147,18 +158,23 @@ def _copy_offsets(
     e1, e2 : ndarray, shape (n,)
         Expected offsets (px, along the normals) of the first and the second copy's edge.
     shown1, shown2 : ndarray of bool, shape (n,)
-        Whether each shows. Two lines that overlap (closer than their width plus
+        Whether each shows. Two lines that overlap (closer than their half widths plus
         :data:`_LINE_GAP_PX`) form one thicker line, which shows only the outer of the two
-        edges of a class. A region boundary's second step shows only beyond
-        :data:`_MERGE_PX`; nearer, the two merge into one edge, nearer the stronger copy.
+        edges of a class; a dark and a bright line that overlap show each their outer edges, and
+        between them one edge of the class their near edges share, taken as the first's. A region
+        boundary's second step shows only beyond :data:`_MERGE_PX`; nearer, the two merge into
+        one edge, nearer the stronger copy.
     """
+    h2 = half_width if half_width2 is None else half_width2
     e1 = np.full(delta.shape, sign * half_width)
-    e2 = e1 + delta
+    e2 = sign * h2 + delta
     if not lines:
         return e1, e2, np.ones(delta.shape, bool), np.abs(delta) > _MERGE_PX
-    apart = np.abs(delta) > 2.0 * abs(half_width) + _LINE_GAP_PX
+    apart = np.abs(delta) > abs(half_width) + abs(h2) + _LINE_GAP_PX
+    if half_width * h2 < 0:
+        return e1, e2, np.ones(delta.shape, bool), apart | (sign * h2 * delta > 0)
     # this class's edge lies on the side sign * sign(half_width) of its line
-    second_outer = sign * math.copysign(1.0, half_width) * delta > 0
+    second_outer = sign * math.copysign(1.0, half_width + h2) * delta > 0
     return e1, e2, apart | ~second_outer, apart | second_outer
 
 
@@ -182,7 +198,7 @@ def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_
 
 
 def _copy_edges(
-    delta: np.ndarray, half_width: float, classes: tuple[float, ...]
+    delta: np.ndarray, half_width: float, classes: tuple[float, ...], half_width2: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every shown edge of doubled walls (:func:`_copy_offsets`), one row each.
 
@@ -190,8 +206,9 @@ def _copy_edges(
     ----------
     delta : ndarray, shape (n,)
         Offset (px) of the second copy along each wall normal.
-    half_width : float
-        Half width (px) of the wall lines.
+    half_width, half_width2 : float
+        Half widths (px) of the first and the second copy's wall lines (``half_width2``
+        None: the first's).
     classes : tuple of float
         Polarity classes shown (:func:`_wall_classes`).
 
@@ -212,7 +229,7 @@ def _copy_edges(
     lines = len(classes) == 2
     parts = []
     for sign in classes:
-        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines)
+        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines, half_width2)
         for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
             rows = np.flatnonzero(shown)
             parts.append((rows, np.full(len(rows), sign), np.full(len(rows), second), e[rows],
@@ -232,20 +249,23 @@ def _refine_copies(
     max_shift_px: float,
     tol_px: float = 0.05,
 ) -> _Copies:
-    """Polarity-aware refinement (as :func:`refine_signed`) of doubled walls: pose, line half
-    width and the second copy's shift.
+    """Polarity-aware refinement (as :func:`refine_signed`) of doubled walls: pose, each copy's
+    line half width and the second copy's shift.
 
     Each class's edge of each copy is expected where :func:`_copy_offsets` puts it; a copy's
     edge that shows takes the samples within ``3 sigma`` (px) of it that are nearer to it than
     to the other copy's edge of the class (where that shows), and their Gaussian-weighted
     mean offset is one row of a weighted Gauss–Newton step (the second copy's rows also move
-    the shift). Region boundaries (one class) keep their half width.
+    the shift). The copies share one half width unless ``copies`` gives the second its own
+    (:attr:`_Copies.second_half_width`). Region boundaries (one class) keep their half widths.
     """
     gain = 1.0 + FIELD_BLUR_VAR / sigma**2
     u = np.arange(-3.0 * sigma, 3.0 * sigma + 1e-9, 0.5)
     kernel = np.exp(-0.5 * (u / sigma) ** 2)
     lines = len(classes) == 2
-    pose, half_width, shift = copies.pose, copies.half_width, np.asarray(copies.shift, dtype=float)
+    pose, shift = copies.pose, np.asarray(copies.shift, dtype=float)
+    half_width, half_width2 = copies.half_width, copies.half_width2
+    alike = copies.second_half_width is None
     scale0 = pose.px_per_mm
     for _ in range(iterations):
         pts, nrm = image_points(pose, model)
@@ -254,7 +274,7 @@ def _refine_copies(
             break
         pts, nrm = pts[vis], nrm[vis]
         base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes)
+        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes, half_width2)
         n = nrm[point]
         prof = profiles(sfield, pts[point] + expected[:, None] * n, n, u)
         a = prof[..., 0] * n[:, 0:1]
@@ -269,16 +289,21 @@ def _refine_copies(
         ok = wsum > 1e-3
         if np.count_nonzero(ok) < 20:
             break
-        jac = np.zeros((np.count_nonzero(ok), 7))
+        jac = np.zeros((np.count_nonzero(ok), 8))
         jac[:, :4] = base[point[ok]]
-        jac[:, 4] = sign[ok] if lines else 0.0
-        jac[:, 5:7] = n[ok] * second[ok, None]
+        if lines and alike:
+            jac[:, 4] = sign[ok]
+        elif lines:
+            jac[:, 4] = sign[ok] * ~second[ok]
+            jac[:, 5] = sign[ok] * second[ok]
+        jac[:, 6:8] = n[ok] * second[ok, None]
         step = solve_step(jac, gain * (a @ u)[ok] / wsum[ok], wsum[ok], max_px=(max_half_width + 3.0 * sigma) * gain)
         if step is None:
             break
         pose = updated(pose, step[:4], rho)
         half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
-        shift = shift + step[5:7]
+        half_width2 = half_width if alike else min(max(half_width2 + float(step[5]), -max_half_width), max_half_width)
+        shift = shift + step[6:8]
         length = float(np.hypot(*shift))
         if length > max_shift_px:
             shift *= max_shift_px / length
@@ -286,7 +311,7 @@ def _refine_copies(
             break
         if float(np.abs(step).sum()) < tol_px:
             break
-    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])))
+    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])), None if alike else half_width2)
 
 
 def _class_edge_distances(
@@ -313,21 +338,33 @@ def _copy_support(
     copies: _Copies, layers: np.ndarray, model: WallModel, classes: tuple[float, ...], tol_px: float = 1.0
 ) -> _Support:
     """:class:`_Support` of ``copies``: their expected edges with a Canny edge of the same
-    class within ``tol_px`` (px)."""
+    class within ``tol_px`` (px).
+
+    Where the walls are lines (two classes), the second copy has a look of its own
+    (:attr:`_Copies.second_half_width`) and its edges of one class are found at no more than
+    half the rate of the other's, the second copy is a region boundary (a single step) and only
+    its found class counts for it.
+    """
     pts, nrm = image_points(copies.pose, model)
     vis = visible(pts, layers.shape)
     pts, nrm = pts[vis], nrm[vis]
     delta = nrm @ np.asarray(copies.shift, dtype=float)
     resolved = np.abs(delta) >= _RESOLVED_PX
-    counts = np.zeros(4, int)
-    for sign in classes:
-        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+    counts = np.zeros((len(classes), 4), int)
+    for k, sign in enumerate(classes):
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2)
         found1 = _class_edge_distances(layers, pts, nrm, e1, sign) <= tol_px
         found2 = _class_edge_distances(layers, pts, nrm, e2, sign) <= tol_px
         shown2 &= resolved
-        counts += [np.count_nonzero(found1 & shown1), np.count_nonzero(shown1),
-                   np.count_nonzero(found2 & shown2), np.count_nonzero(shown2)]
-    return _Support(*(int(c) for c in counts), n_points=len(pts))
+        counts[k] = [np.count_nonzero(found1 & shown1), np.count_nonzero(shown1),
+                     np.count_nonzero(found2 & shown2), np.count_nonzero(shown2)]
+    total = counts.sum(axis=0)
+    if len(classes) == 2 and copies.second_half_width is not None:
+        rates = counts[:, 2] / np.maximum(counts[:, 3], 1)
+        best = int(np.argmax(rates))
+        if rates[1 - best] <= 0.5 * rates[best]:
+            total[2:] = counts[best, 2:]
+    return _Support(*(int(c) for c in total), n_points=len(pts))
 
 
 def _copy_contrast(
@@ -350,7 +387,7 @@ def _copy_contrast(
     t = np.array([-0.5, 0.0, 0.5])
     log_ratio, used = 0.0, False
     for sign in classes:
-        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2)
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2)
         medians = []
         for e, shown in ((e1, shown1 & resolved), (e2, shown2 & resolved)):
             if np.count_nonzero(shown) < min_edges:
@@ -597,6 +634,13 @@ def _line_widening(
     return np.array([a * math.cos(phi), a * math.sin(phi)]), float(explained)
 
 
+def _own_look(half_width: float, half_width2: float) -> float | None:
+    """The second copy's own half width (px) for :class:`_Copies` where it looks unlike the first
+    (a region step, 0, or a line of the other polarity: the product not positive), else None
+    (the copies share one)."""
+    return half_width2 if half_width * half_width2 <= 0 else None
+
+
 def _copy_starts(
     pose: CameraPose,
     half_width: float,
@@ -605,7 +649,7 @@ def _copy_starts(
     classes: tuple[float, ...],
     cfg: RegistrationConfig,
     guide: tuple[np.ndarray, float] | None = None,
-) -> tuple[list[_Copies], _Copies | None]:
+) -> tuple[list[tuple[_Copies, _Copies | None]], tuple[_Copies, _Copies | None] | None]:
     """Starting points for :func:`_refine_copies` from a single-copy fit ``pose`` (px), which
     may lie on either copy or between them, and with ``guide`` the start where the array says
     the other copy lies (:func:`_guided_start`; None without ``guide`` or where it finds none).
@@ -619,7 +663,9 @@ def _copy_starts(
     width varies with its direction (:func:`_line_widening`: at least
     :data:`_MIN_WIDENING_PX` and :data:`_MIN_WIDENING_EXPLAINED` of the variance), the two
     copies ``∓ shift / 2`` either side of ``pose``. (Region boundaries that close merge into
-    one edge, which shows no second copy to fit.)
+    one edge, which shows no second copy to fit.) Each start comes as a pair: the copies alike
+    (one half width), and where the surface's peak has the other polarity or a single step, the
+    same shift with a look of its own for the second copy (else None).
     """
     lines = len(classes) == 2
     radius = _MAX_PARALLAX_MM * pose.px_per_mm + 2.0
@@ -628,7 +674,7 @@ def _copy_starts(
     tables = _surface_tables(pose, sfield, sparse, classes, sg.t)
     surface, widths = _shift_surface(tables, sg)
     starts = []
-    own_masked = None  # the surface with the fit's own edges masked
+    own_masked = None  # the surface with the fit's own edges masked, and its half widths
     peaks = _surface_peaks(surface, widths, sg.grid, 1)
     if peaks:
         v, _, h = peaks[0]
@@ -640,29 +686,33 @@ def _copy_starts(
             one_tables = _surface_tables(one, sfield, sparse, classes, sg.t)
         masked, masked_hw = _shift_surface(_masked_tables(one_tables, sg.t, one_hw), sg)
         if one is pose:
-            own_masked = masked
+            own_masked = masked, masked_hw
         if float(masked.max()) >= _MIN_MASKED_RATIO * float(surface.max()):
-            for shift, _, _ in _surface_peaks(masked, masked_hw, sg.grid, 1 if lines else 2, min_shift_px=2.0):
-                starts.append(_Copies(one, one_hw, (float(shift[0]), float(shift[1]))))
+            for shift, _, h2 in _surface_peaks(masked, masked_hw, sg.grid, 1 if lines else 2, min_shift_px=2.0):
+                own = _own_look(one_hw, h2)
+                starts.append((_Copies(one, one_hw, (float(shift[0]), float(shift[1]))),
+                               None if own is None else _Copies(one, one_hw, (float(shift[0]), float(shift[1])), own)))
     if lines:
         shift, explained = _line_widening(pose, half_width, sfield, sparse)
         if math.hypot(*shift) >= _MIN_WIDENING_PX and explained >= _MIN_WIDENING_EXPLAINED:
-            starts.append(_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))))
+            starts.append((_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))), None))
     if guide is None:
         return starts, None
     if own_masked is None:
-        own_masked, _ = _shift_surface(_masked_tables(tables, sg.t, half_width), sg)
-    return starts, _guided_start(pose, half_width, own_masked, sg, guide)
+        own_masked = _shift_surface(_masked_tables(tables, sg.t, half_width), sg)
+    return starts, _guided_start(pose, half_width, *own_masked, sg, guide)
 
 
 def _guided_start(
-    pose: CameraPose, half_width: float, masked: np.ndarray, sg: _SurfaceGrid, guide: tuple[np.ndarray, float],
-) -> _Copies | None:
+    pose: CameraPose, half_width: float, masked: np.ndarray, masked_hw: np.ndarray, sg: _SurfaceGrid,
+    guide: tuple[np.ndarray, float],
+) -> tuple[_Copies, _Copies | None] | None:
     """A start for :func:`_refine_copies` where the array outside the entry says the other copy
     lies: ``guide`` is the image normal of the insertion axis and the array's offset (px) along
     it from ``pose``'s axis. The best shift of ``masked`` (the :func:`_shift_surface` of ``sg``
-    with the fit's own edges masked) whose move across the axis is the array's (within
-    :data:`_GUIDE_TOL_PX` or a quarter of it); None when no such shift shows any edges."""
+    with the fit's own edges masked; ``masked_hw`` its half widths, px) whose move across the
+    axis is the array's (within :data:`_GUIDE_TOL_PX` or a quarter of it), as a pair like
+    :func:`_copy_starts`'; None when no such shift shows any edges."""
     normal, offset = guide
     gx, gy = np.meshgrid(sg.grid, sg.grid)  # x = grid[column], y = grid[row]
     band = (np.abs(normal[0] * gx + normal[1] * gy - offset) <= max(_GUIDE_TOL_PX, 0.25 * abs(offset))) & (
@@ -670,7 +720,9 @@ def _guided_start(
     r, c = np.unravel_index(np.argmax(np.where(band, masked, -np.inf)), masked.shape)
     if not (band[r, c] and masked[r, c] > 0):
         return None
-    return _Copies(pose, half_width, (float(sg.grid[c]), float(sg.grid[r])))
+    shift = (float(sg.grid[c]), float(sg.grid[r]))
+    own = _own_look(half_width, float(masked_hw[r, c]))
+    return _Copies(pose, half_width, shift), None if own is None else _Copies(pose, half_width, shift, own)
 
 
 def _second_shows(copies: _Copies, support: _Support, layers: np.ndarray, model: WallModel,
@@ -683,7 +735,8 @@ def _second_shows(copies: _Copies, support: _Support, layers: np.ndarray, model:
         return False
     dx, dy = copies.shift
     turned = [(-dy, dx), (-dx, -dy), (dy, -dx)]
-    rates = [_copy_support(_Copies(copies.pose, copies.half_width, t), layers, model, classes).second_rate
+    rates = [_copy_support(_Copies(copies.pose, copies.half_width, t, copies.second_half_width), layers, model,
+                           classes).second_rate
              for t in turned]
     return support.second_rate >= float(np.median(rates)) + _MIN_GUIDED_EXCESS
 
@@ -764,27 +817,43 @@ def doubled_walls(
     single = _copy_support(_Copies(pose, half_width, (0.0, 0.0)), layers, coarse, classes)
     plain, guided = _copy_starts(pose, half_width, edges.signed, fine, classes, cfg,
                                  guide if where_array is not None else None)
-    starts = [(start, False) for start in plain] + ([(guided, True)] if guided is not None else [])
+    starts = [(*pair, False) for pair in plain] + ([(*guided, True)] if guided is not None else [])
     best: tuple[float, _Copies, bool] | None = None
-    for start, by_array in starts:
-        copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6, **limits)
-        support = _copy_support(copies, layers, coarse, classes)
-        if by_array:  # only with where_array
-            plausible = (_second_shows(copies, support, layers, coarse, classes)
-                         and nearer_second_copy(*where_array(copies.pose, copies.shift), copies.pose.px_per_mm))
-        else:
-            plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
-                where_array is not None and second_copy_is_the_wall(*where_array(copies.pose, copies.shift),
-                                                                    copies.pose.px_per_mm)))
-        if plausible and (best is None or support.score > best[0]):
-            best = (support.score, copies, by_array)
+    for alike, unlike, by_array in starts:
+        for start in (alike, unlike):  # a look of its own only where the copies as alike fail
+            if start is None:
+                continue
+            copies = _refine_copies(start, edges.signed, coarse, classes, sigma=cfg.final_sigma_px, iterations=6,
+                                    **limits)
+            support = _copy_support(copies, layers, coarse, classes)
+            if by_array:  # only with where_array
+                plausible = (_second_shows(copies, support, layers, coarse, classes)
+                             and nearer_second_copy(*where_array(copies.pose, copies.shift), copies.pose.px_per_mm))
+            else:
+                plausible = support.second_is_real and (support.first_rate >= 0.85 * single.first_rate or (
+                    where_array is not None and second_copy_is_the_wall(*where_array(copies.pose, copies.shift),
+                                                                        copies.pose.px_per_mm)))
+            if plausible:
+                if best is None or support.score > best[0]:
+                    best = (support.score, copies, by_array)
+                break
     if best is None:
         return None
-    by_array = best[2]
-    copies = _refine_copies(best[1], edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
+    return _confirmed(best[1], best[2], edges, layers, model, fine, classes, cfg, b_per_rad, limits)
+
+
+def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray, model: WallModel, fine: WallModel,
+               classes: tuple[float, ...], cfg: RegistrationConfig, b_per_rad: float,
+               limits: dict[str, float]) -> tuple[_Copies, float] | None:
+    """The last stage of :func:`doubled_walls` for one plausible candidate: refined on the
+    ``fine`` walls, turned along the valley where that fits better, and kept when its second
+    copy still shows, lies far enough away and is not a blurred wall's second ridge; returns
+    the copies named stronger first and the second copy's relative contrast, or None."""
+    copies = _refine_copies(copies, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
-        turned = _Copies(valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift)
+        turned = _Copies(valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift,
+                         copies.second_half_width)
         turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
         if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
             copies = turned

@@ -74,6 +74,7 @@ def _edge_distances(
     half_width: float | None,
     reach: float,
     second: np.ndarray | None = None,
+    half_width2: float | None = None,
 ) -> np.ndarray:
     """Distance (px) along each normal from a wall's expected edge to the nearest edge pixel.
 
@@ -82,9 +83,10 @@ def _edge_distances(
     and one pointing in at ``-half_width``; with ``None``, any aligned edge counts from the
     wall itself. ``second`` (px, one per point), for doubled walls: the offset along the
     normal of the wall's second copy, whose edges are expected as far from it; an edge counts
-    from the nearer copy. Walls without an edge within ``reach`` get ``reach``.
+    from the nearer copy, the second copy's at ``±half_width2`` (px; None: as the first's).
+    Walls without an edge within ``reach`` get ``reach``.
     """
-    hw = 0.0 if half_width is None else abs(half_width)
+    hw = 0.0 if half_width is None else max(abs(half_width), abs(half_width2 or 0.0))
     lo, hi = -reach - hw, reach + hw
     if second is not None and len(second):
         lo, hi = lo + min(float(second.min()), 0.0), hi + max(float(second.max()), 0.0)
@@ -106,7 +108,11 @@ def _edge_distances(
     expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
     dist = offset - expected
     if second is not None:
-        dist = np.minimum(np.abs(dist), np.abs(dist - second[:, None].astype(np.float32)))
+        dist2 = dist - second[:, None].astype(np.float32)
+        if half_width is not None and half_width2 is not None:
+            dist2 += expected
+            dist2 -= np.where(proj > 0, np.float32(half_width2), np.float32(-half_width2))
+        dist = np.minimum(np.abs(dist), np.abs(dist2))
     np.abs(dist, out=dist)
     stray = offset - t  # distance from the sample's own offset
     np.abs(stray, out=stray)
@@ -175,15 +181,17 @@ def wall_fit_from(
     half_width: float | None,
     tol: float,
     parallax_px: np.ndarray | None = None,
+    half_width2: float | None = None,
 ) -> WallFit:
     """:class:`WallFit` of ``pose`` against a full-frame edge layer image; with
-    ``parallax_px`` (px, image x and y), the walls' second copy that far away counts too."""
+    ``parallax_px`` (px, image x and y), the walls' second copy that far away counts too, its
+    lines ``half_width2`` (px; None: ``half_width``) wide."""
     pts, nrm = image_points(pose, model)
     h, w = layers.shape[:2]
     vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
     reach = max(_REACH_PX, tol)
     second = None if parallax_px is None else nrm[vis] @ np.asarray(parallax_px, dtype=float)
-    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second)
+    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second, half_width2)
     sizes = np.bincount(model.group, minlength=4)
     return _summarise(dist, model.group[vis], len(pts), sizes, tol, model.spacing_mm, reach)
 
