@@ -807,8 +807,11 @@ def doubled_walls(
     :func:`_guided_start`) and ``where_array``, the start where the array says the other copy
     lies (:func:`_copy_starts`) is tried too; it needs only a second copy that shows (:func:`_second_shows`)
     and the array nearer its axis than the first's
-    (:func:`~tympani.vision.registration.axis.nearer_second_copy`). Returns the copies and the
-    second copy's relative contrast (:func:`_copy_contrast`).
+    (:func:`~tympani.vision.registration.axis.nearer_second_copy`). A start whose copies, alike,
+    are not plausible is tried with a second copy of its own look where it has one
+    (:func:`_copy_starts`); the best alike copies go on to the last stage first, and unlike ones
+    only where the alike ones' second copy fades there. Returns the copies and the second copy's
+    relative contrast (:func:`_copy_contrast`).
     """
     coarse = model.subsample(4.0 / pose.px_per_mm)
     classes = _wall_classes(pose, edges.signed, coarse)
@@ -818,7 +821,7 @@ def doubled_walls(
     plain, guided = _copy_starts(pose, half_width, edges.signed, fine, classes, cfg,
                                  guide if where_array is not None else None)
     starts = [(*pair, False) for pair in plain] + ([(*guided, True)] if guided is not None else [])
-    best: tuple[float, _Copies, bool] | None = None
+    best: dict[bool, tuple[float, _Copies, bool]] = {}  # by whether the copies look alike
     for alike, unlike, by_array in starts:
         for start in (alike, unlike):  # a look of its own only where the copies as alike fail
             if start is None:
@@ -834,21 +837,28 @@ def doubled_walls(
                     where_array is not None and second_copy_is_the_wall(*where_array(copies.pose, copies.shift),
                                                                         copies.pose.px_per_mm)))
             if plausible:
-                if best is None or support.score > best[0]:
-                    best = (support.score, copies, by_array)
+                kind = copies.second_half_width is None
+                if kind not in best or support.score > best[kind][0]:
+                    best[kind] = (support.score, copies, by_array)
                 break
-    if best is None:
-        return None
-    return _confirmed(best[1], best[2], edges, layers, model, fine, classes, cfg, b_per_rad, limits)
+    # the best alike copies first; unlike ones only where those fade on the fine walls
+    for kind in (True, False):
+        if kind in best:
+            found = _confirmed(best[kind][1], best[kind][2], edges, layers, model, fine, classes, cfg, b_per_rad,
+                               limits)
+            if found != "faded":
+                return found
+    return None
 
 
 def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray, model: WallModel, fine: WallModel,
                classes: tuple[float, ...], cfg: RegistrationConfig, b_per_rad: float,
-               limits: dict[str, float]) -> tuple[_Copies, float] | None:
+               limits: dict[str, float]) -> tuple[_Copies, float] | str | None:
     """The last stage of :func:`doubled_walls` for one plausible candidate: refined on the
     ``fine`` walls, turned along the valley where that fits better, and kept when its second
     copy still shows, lies far enough away and is not a blurred wall's second ridge; returns
-    the copies named stronger first and the second copy's relative contrast, or None."""
+    the copies named stronger first and the second copy's relative contrast, ``"faded"`` when
+    the second copy no longer shows (or lies too near), or None for a blurred single wall."""
     copies = _refine_copies(copies, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
@@ -861,7 +871,7 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
     least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
     shows = _second_shows(copies, support, layers, fine, classes) if by_array else support.second_is_real
     if not (shows and math.hypot(*copies.shift) >= least):
-        return None
+        return "faded"
     shift = np.asarray(copies.shift)
     magnitude = edges.edge_map.magnitude
     if max(_blur_ratio(magnitude, copies.pose, model, shift),
