@@ -14,7 +14,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from tympani.vision.angles.config import MeasureConfig
-from tympani.vision.angles.definitions import AngleTable, angle_table
+from tympani.vision.angles.definitions import AngleTable, angle_table, spiral_angle
 from tympani.vision.geometry import (
     DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
@@ -76,6 +76,8 @@ class MeasurePlan:
         Stations whose interior samples all lie inside the image.
     angles : AngleTable
         The phantom's constants for the angles of measured points.
+    station_theta : ndarray, shape (stations,)
+        The angle (rad, unwrapped) of each station's backbone point.
     r_tip_mm : float
         The array's radius (mm) at its tip.
     refusal : str or None
@@ -103,6 +105,7 @@ class MeasurePlan:
     i_start: int
     in_view: np.ndarray
     angles: AngleTable
+    station_theta: np.ndarray
     r_tip_mm: float
     refusal: str | None = None
 
@@ -255,6 +258,7 @@ def prepare_measurement(
     penalty = np.where(interior, 0.0, 1e4).astype(np.float32)
     # the coarse strip's offsets that are never inside the channel only feed the blur of their
     # neighbours: keep one either side of those that are (the survey's results do not change)
+    table = angle_table(phantom)
     inside_c = np.flatnonzero(interior[::stride, ::stride].any(axis=1))
     rows = slice(max(int(inside_c[0]) - 1, 0), int(inside_c[-1]) + 2)
     return MeasurePlan(
@@ -265,5 +269,5 @@ def prepare_measurement(
         coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride][rows]), fine_penalty=penalty,
         u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
         in_view=np.all(inside | ~interior, axis=0),
-        angles=angle_table(phantom), r_tip_mm=float(array.radius(0.0)), refusal=_scale_refusal(ppm, array, cfg),
+        angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)), refusal=_scale_refusal(ppm, array, cfg),
     )

@@ -88,6 +88,11 @@ def contact_run(gaps: np.ndarray, tol: np.ndarray | float, cl: Ragged, cfg: Meas
     return touching[cl.start], i0, i1, frac
 
 
+# A centre-line point whose angle differs from its station's by more than this (rad) lies across a
+# wall: its radius is nearer another turn's (a difference of 2 pi, less a little curvature).
+_CROSSED_RAD = 1.0
+
+
 def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[str, float]]]
                    ) -> list[FrameMeasurement]:
     """Stage 4: each frame's angles, depth and outline from its centre line, all frames at once.
@@ -118,6 +123,11 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     gaps = np.empty(len(cl.row))
     gaps[cl.start], gaps[inner] = gap[at[kept.start]], gap[at]
     theta = spiral_angle(points, plan.angles)
+    # each point's angle against the channel's own where it was found: a point whose radius is
+    # nearer another turn's lies across a wall (the array cannot be there)
+    station = np.empty(len(cl.row), dtype=np.intp)
+    station[cl.start], station[inner] = los + top, los[kept.row] + keep
+    crossed = cl.count(np.abs(theta - plan.station_theta[station]) > _CROSSED_RAD) > 0
     # contact_angles' rule, with the tolerance raised by any bias of the measured gaps
     tol = contact_tolerance(gaps, cl, cfg)
     contact, i0, i1, frac = contact_run(gaps, tol, cl, cfg)
@@ -148,9 +158,13 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     outline[ol.start[kept.row] + 2 * kept.n[kept.row] - kept.local] = line[at] + side
     results = []
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
-               bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist())
-    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b in rows:
+               bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b in rows:
         extras["depth_mm"] = depth_b
+        if crossed_b:
+            results.append(failure(f"the array's centre line would cross a wall into the next turn (tip read at "
+                                   f"{t_tip:.2f} rad)", **extras))
+            continue
         if swing_b > cfg.contact_swing_rad:
             results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {cfg.gap_resolution_px:g} "
                                    "px narrower", **extras))
