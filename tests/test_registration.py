@@ -724,3 +724,28 @@ def test_a_wood_grained_table_is_refused_or_seen_through_never_misread():
         assert centre <= 0.1 and scale <= 0.1, (seed, centre, scale)
         found += 1
     assert found >= 3
+
+
+def test_the_valley_scan_turns_a_fit_back_along_the_spirals_self_similarity():
+    """Beyond its 100° corner the spiral falls on itself when turned about its centre with the
+    matching change of scale, so a fit can settle turned along that valley where the entry shows
+    faintly: turns of 68° (9.4 % in scale) were seen on independent renders. From the true pose
+    turned 40–80° either way along the valley, :func:`valley_scan` turns back to within 1° in
+    eight clean views (measured: within 0.3°); trying only 30° either way, as before, it turned
+    none of them back."""
+    from tympani.vision.edges import edges_from_gradients
+    from tympani.vision.registration.frames import gradients_for_canny, prepare_edges
+    from tympani.vision.registration.model import wall_model
+    from tympani.vision.registration.valley import valley_pose, valley_scan
+
+    b_per_rad = math.degrees(DEFAULT_PHANTOM.b_per_deg)
+    model = wall_model(DEFAULT_PHANTOM, spacing_mm=0.02)
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        pose, frame, _ = _render(rng, 0.0)
+        gray = to_gray(frame).astype(np.float32) / 255.0
+        gx, gy, sigma, magnitude = gradients_for_canny(gray, 1.0)
+        edges = prepare_edges(edges_from_gradients(gx, gy, sigma_px=sigma, magnitude=magnitude), 4)
+        turn = math.radians(rng.uniform(40.0, 80.0)) * rng.choice([-1.0, 1.0])
+        back = valley_scan(valley_pose(pose, turn, b_per_rad), edges.pyramid, model, b_per_rad)
+        assert abs(math.degrees(back + turn)) <= 1.0, (seed, math.degrees(turn), math.degrees(back))
