@@ -164,7 +164,7 @@ def register(
     # where the array lies
     offset = array_axis_offset(gray, pose, phantom)
     guide = (axis_normal(pose, phantom), offset) if off_the_axis(offset, pose.px_per_mm) else None
-    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide)
+    doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide, gray)
     shift, contrast = (0.0, 0.0), float("nan")
     reasons = _fit_failures(fit, cfg)
     if doubled is not None:

@@ -59,6 +59,9 @@ _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 # taken for a blurred single wall (renderer C: blurred 0.32-0.41; doubled walls 0.52-1.55, ours
 # 0.80-1.02).
 _MAX_BLUR_RATIO = 0.45
+# ... unless the lines' copies have the background between them: the level midway between them is
+# at most this share of the lines' own (:func:`_filled_between`).
+_MAX_FILLED = 0.3
 # How far (px) a guided start's move across the insertion axis may differ from the array's.
 _GUIDE_TOL_PX = 1.5
 # How much more of its expected edges (share) a guided second copy must find than the same
@@ -778,6 +781,33 @@ def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift
     return float(np.median(hi) / max(float(np.median(lo)), 1e-9))
 
 
+def _filled_between(gray: np.ndarray, copies: _Copies, model: WallModel, reach_px: float = 3.0) -> float:
+    """How far the image between two copies of wall lines is as dark (or bright) as the lines.
+
+    Along walls whose normal lies within about 30° of the shift, the grey level midway between
+    the copies, less the level beside the first copy on its far side (``reach_px`` beyond its
+    line), over the first copy's line less that level: about 1 where a single line is smeared
+    along the shift into a plateau whose two ends pass for copies (motion blur), about 0 where two
+    lines have the background between them. NaN with fewer than 20 such walls.
+    """
+    pts, nrm = image_points(copies.pose, model.subsample(1.0 / copies.pose.px_per_mm))
+    seen = visible(pts, gray.shape)
+    pts, nrm = pts[seen], nrm[seen]
+    shift = np.asarray(copies.shift, dtype=float)
+    delta = nrm @ shift
+    along = np.abs(delta) > 0.85 * float(np.hypot(*shift))
+    if np.count_nonzero(along) < 20:
+        return float("nan")
+    pts, nrm, delta = pts[along], nrm[along], delta[along]
+    far = -np.sign(delta) * (abs(copies.half_width) + reach_px)
+    t = np.stack([far, np.zeros_like(delta), 0.5 * delta], axis=1)  # beside, on the line, midway
+    sx = (pts[:, 0:1] + t * nrm[:, 0:1]).astype(np.float32)
+    sy = (pts[:, 1:2] + t * nrm[:, 1:2]).astype(np.float32)
+    level = cv2.remap(np.asarray(gray, dtype=np.float32), sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    line, mid = level[:, 1] - level[:, 0], level[:, 2] - level[:, 0]
+    return float(np.median(mid) / np.median(line)) if abs(float(np.median(line))) > 1e-6 else float("nan")
+
+
 def doubled_walls(
     edges: Edges,
     layers: np.ndarray,
@@ -788,6 +818,7 @@ def doubled_walls(
     b_per_rad: float,
     where_array: Callable[[CameraPose, tuple[float, float]], tuple[float, float]] | None = None,
     guide: tuple[np.ndarray, float] | None = None,
+    gray: np.ndarray | None = None,
 ) -> tuple[_Copies, float] | None:
     """Doubled walls near a single-copy fit, or None when the walls are single.
 
@@ -803,7 +834,8 @@ def doubled_walls(
     the spiral's valley when that fits better (:func:`valley_scan`), and its copies named
     so that the first is the one with the stronger edges; copies closer than
     :data:`_MIN_PARALLAX_MM`, or that are the two ridges of a wall blurred along the shift
-    (:func:`_blur_ratio`), are taken for single walls. With ``guide`` (see
+    (:func:`_blur_ratio`; not where two lines show the background between them in ``gray``, the
+    frame: :func:`_filled_between`), are taken for single walls. With ``guide`` (see
     :func:`_guided_start`) and ``where_array``, the start where the array says the other copy
     lies (:func:`_copy_starts`) is tried too; it needs only a second copy that shows (:func:`_second_shows`)
     and the array nearer its axis than the first's
@@ -845,7 +877,7 @@ def doubled_walls(
     for kind in (True, False):
         if kind in best:
             found = _confirmed(best[kind][1], best[kind][2], edges, layers, model, fine, classes, cfg, b_per_rad,
-                               limits)
+                               limits, gray)
             if found != "faded":
                 return found
     return None
@@ -853,11 +885,12 @@ def doubled_walls(
 
 def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray, model: WallModel, fine: WallModel,
                classes: tuple[float, ...], cfg: RegistrationConfig, b_per_rad: float,
-               limits: dict[str, float]) -> tuple[_Copies, float] | str | None:
+               limits: dict[str, float], gray: np.ndarray | None = None) -> tuple[_Copies, float] | str | None:
     """The last stage of :func:`doubled_walls` for one plausible candidate: refined on the
     ``fine`` walls, turned along the valley where that fits better, and kept when its second
     copy still shows, lies far enough away and is not a blurred wall's second ridge; returns
-    the copies named stronger first and the second copy's relative contrast, ``"faded"`` when
+    the copies named stronger first and the second copy's relative contrast (``gray``, the frame,
+    tells two blurred lines from one smeared line), ``"faded"`` when
     the second copy no longer shows (or lies too near), or None for a blurred single wall."""
     copies = _refine_copies(copies, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
@@ -876,7 +909,10 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
     magnitude = edges.edge_map.magnitude
     if max(_blur_ratio(magnitude, copies.pose, model, shift),
            _blur_ratio(magnitude, _translated(copies.pose, shift), model, shift)) < _MAX_BLUR_RATIO:
-        return None
+        # two lines with the background between them are copies even where blur weakens them
+        filled = _filled_between(gray, copies, model) if gray is not None and len(classes) == 2 else math.nan
+        if not filled < _MAX_FILLED:
+            return None
     contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
     if contrast > 1.0:
         copies, contrast = copies.swapped(), 1.0 / contrast
