@@ -269,5 +269,6 @@ def prepare_measurement(
         coarse_penalty=np.ascontiguousarray(penalty[::stride, ::stride][rows]), fine_penalty=penalty,
         u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
         in_view=np.all(inside | ~interior, axis=0),
-        angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)), refusal=_scale_refusal(ppm, array, cfg),
+        angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)),
+        refusal=_scale_refusal(ppm, array, cfg),
     )

@@ -59,6 +59,8 @@ _SURFACE_HALF_WIDTHS = (-3.0, -1.5, 0.0, 1.5, 3.0)
 # taken for a blurred single wall (renderer C: blurred 0.32-0.41; doubled walls 0.52-1.55, ours
 # 0.80-1.02).
 _MAX_BLUR_RATIO = 0.45
+# Walls whose normal lies within about 30° of the copies' shift: |cos| above this.
+_ALONG_COS = 0.85
 # ... unless the lines' copies have the background between them: the level midway between them is
 # at most this share of the lines' own (:func:`_filled_between`).
 _MAX_FILLED = 0.3
@@ -744,6 +746,16 @@ def _second_shows(copies: _Copies, support: _Support, layers: np.ndarray, model:
     return support.second_rate >= float(np.median(rates)) + _MIN_GUIDED_EXCESS
 
 
+def _walls_along(pose: CameraPose, model: WallModel, shape: tuple[int, ...], shift: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The walls in view of an image of ``shape`` at ``pose``, points 1 px apart (px), their
+    normals, and how nearly each normal lies along ``shift`` (px): ``|cos|`` of their angle."""
+    pts, nrm = image_points(pose, model.subsample(1.0 / pose.px_per_mm))
+    seen = visible(pts, shape)
+    pts, nrm = pts[seen], nrm[seen]
+    return pts, nrm, np.abs(nrm @ (shift / max(float(np.hypot(*shift)), 1e-9)))
+
+
 def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift: np.ndarray,
                 reach_px: float = 6.0) -> float:
     """How much weaker the walls' edges are along ``shift`` than across it, at one copy.
@@ -768,14 +780,10 @@ def _blur_ratio(magnitude: np.ndarray, pose: CameraPose, model: WallModel, shift
         walls within about 17° of perpendicular to it (dimensionless); 1 with fewer than 20
         walls of either.
     """
-    sub = model.subsample(1.0 / pose.px_per_mm)
-    pts, nrm = image_points(pose, sub)
-    seen = visible(pts, magnitude.shape)
-    pts, nrm = pts[seen], nrm[seen]
+    pts, nrm, along = _walls_along(pose, model, magnitude.shape, shift)
     t = np.arange(-reach_px, reach_px + 1e-9, 0.5)
     peak = profiles(magnitude, pts, nrm, t).max(axis=1)
-    along = np.abs(nrm @ (shift / max(float(np.hypot(*shift)), 1e-9)))
-    hi, lo = peak[along > 0.85], peak[along < 0.3]
+    hi, lo = peak[along > _ALONG_COS], peak[along < 0.3]
     if len(hi) < 20 or len(lo) < 20:
         return 1.0
     return float(np.median(hi) / max(float(np.median(lo)), 1e-9))
@@ -790,15 +798,12 @@ def _filled_between(gray: np.ndarray, copies: _Copies, model: WallModel, reach_p
     along the shift into a plateau whose two ends pass for copies (motion blur), about 0 where two
     lines have the background between them. NaN with fewer than 20 such walls.
     """
-    pts, nrm = image_points(copies.pose, model.subsample(1.0 / copies.pose.px_per_mm))
-    seen = visible(pts, gray.shape)
-    pts, nrm = pts[seen], nrm[seen]
     shift = np.asarray(copies.shift, dtype=float)
-    delta = nrm @ shift
-    along = np.abs(delta) > 0.85 * float(np.hypot(*shift))
-    if np.count_nonzero(along) < 20:
+    pts, nrm, along = _walls_along(copies.pose, model, gray.shape, shift)
+    pts, nrm = pts[along > _ALONG_COS], nrm[along > _ALONG_COS]
+    if len(pts) < 20:
         return float("nan")
-    pts, nrm, delta = pts[along], nrm[along], delta[along]
+    delta = nrm @ shift
     far = -np.sign(delta) * (abs(copies.half_width) + reach_px)
     t = np.stack([far, np.zeros_like(delta), 0.5 * delta], axis=1)  # beside, on the line, midway
     sx = (pts[:, 0:1] + t * nrm[:, 0:1]).astype(np.float32)
