@@ -701,7 +701,7 @@ def test_a_tip_read_across_a_wall_into_the_next_turn_is_refused():
         frame = np.clip(gray * (1.0 - hook) + float(np.percentile(gray, 3)) * hook, 0, 255).astype(np.uint8)
         m = measure_frame(frame, _reg(pose))
         if not m.ok:
-            refused += "cross a wall" in m.reason
+            refused += "across a wall" in m.reason
             continue
         assert abs(m.theta_tip - theta) <= 0.2, (seed, m.theta_tip, theta)
     assert refused >= 4

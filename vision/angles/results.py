@@ -162,8 +162,9 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b in rows:
         extras["depth_mm"] = depth_b
         if crossed_b:
-            results.append(failure(f"the array's centre line would cross a wall into the next turn (tip read at "
-                                   f"{t_tip:.2f} rad)", **extras))
+            # kept within the 72 characters an annotated frame shows of a reason
+            results.append(failure(f"centre line across a wall into the next turn (tip read at {t_tip:.2f} rad)",
+                                   **extras))
             continue
         if swing_b > cfg.contact_swing_rad:
             results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {cfg.gap_resolution_px:g} "
