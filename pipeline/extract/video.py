@@ -5,7 +5,9 @@ measurement; :func:`extract_video` collects that stream into the angles table
 (docs/file-formats.md), then goes back over the frames seen after a camera move but before a
 check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_glitches`) and
 frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`)
-and the frames of a video mostly unread (:func:`flag_sparse`), and pools how wide the array looks (:func:`array_width`).
+and the frames of a video mostly unread (:func:`flag_sparse`), measures again on the other copy
+of walls that show twice where the array touches that one (:func:`remeasure_on_other_copy`),
+and pools how wide the array looks (:func:`array_width`).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ __all__ = [
     "extract_video",
     "moves_to_go_over",
     "remeasure_after_moves",
+    "prefers_other_copy",
+    "remeasure_on_other_copy",
     "flag_glitches",
     "flag_sparse",
     "array_width",
@@ -120,14 +124,15 @@ def extract_video(
     changes = remeasure_after_moves(source, rows, log, cfg, name, steps=steps)
     log.add_time("remeasure", time.perf_counter() - t0)
     notes = [c.note() for c in changes if c.first is not None]
-    glitches = flag_glitches(rows, cfg.glitch_rad)
-    if glitches:
-        notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
-                     "median of its measured neighbours)")
-    if cfg.kinematics_tol_mm > 0:
-        runs, note = flag_kinematics(rows, KinematicsConfig(tol_mm=cfg.kinematics_tol_mm))
-        if note:
-            notes.append(note)
+    measured = [r["ok"] for r in rows]
+    checked = motion_checks(rows, cfg)
+    flagged = frozenset(r["frame"] for r, ok in zip(rows, measured) if ok and not r["ok"])
+    t0 = time.perf_counter()
+    switched = remeasure_on_other_copy(source, rows, log, cfg, name, steps=steps, flagged=flagged)
+    log.add_time("remeasure", time.perf_counter() - t0)
+    if switched:  # the frames measured again are checked again
+        checked = motion_checks(rows, cfg)
+    notes += switched + checked
     note = flag_sparse(rows, cfg.sparse_share)
     if note:
         notes.append(note)
@@ -151,6 +156,22 @@ def extract_video(
         array_width={k: v for k, v in width.items() if k != "warning"},
     )
     return table, log.first_registration
+
+
+def motion_checks(rows: list[dict], cfg: ExtractConfig) -> list[str]:
+    """Mark the frames the insertion's motion contradicts not ok (rows changed in place):
+    glitches (:func:`flag_glitches`) and frames off the constant-speed insertion
+    (:func:`~tympani.pipeline.extract.kinematics.flag_kinematics`). Returns their notes."""
+    notes = []
+    glitches = flag_glitches(rows, cfg.glitch_rad)
+    if glitches:
+        notes.append(f"{glitches} frame(s) marked not ok as glitches (an angle over {cfg.glitch_rad:g} rad from the "
+                     "median of its measured neighbours)")
+    if cfg.kinematics_tol_mm > 0:
+        _, note = flag_kinematics(rows, KinematicsConfig(tol_mm=cfg.kinematics_tol_mm))
+        if note:
+            notes.append(note)
+    return notes
 
 
 def _with_move(record: dict, moved_at_frame: int | None) -> dict:
@@ -292,6 +313,77 @@ def _go_over(source: FrameSource, rows: list[dict], at: dict[int, int], move: Mo
                                              f"{move.seen_at}) and no registration fits this frame"}
         rows[at[frame.index]] = frame_row(trial, frame, result, epoch)
     return ViewChange(move, first, fitted)
+
+
+#: The evidence the array must give before a registration's frames are measured again on the
+#: walls' other copy (:func:`prefers_other_copy`): centre line (mm) fitting the other copy better,
+#: summed over the frames, and frames where it does, at least three times as many as those where
+#: the registered copy fits better (by more than half a millimetre each).
+OTHER_COPY_MM = 3.0
+OTHER_COPY_FRAMES = 3
+
+
+def prefers_other_copy(support_mm: np.ndarray) -> bool:
+    """Whether the array says the registration took the doubled walls' wrong copy.
+
+    Parameters
+    ----------
+    support_mm : ndarray
+        The frames' ``other_copy_mm`` (mm of centre line the other copy fits better, see
+        :func:`tympani.vision.angles.results.other_copy_support`; NaN, for a frame whose tip is
+        short of half a turn, is ignored).
+    """
+    s = np.asarray(support_mm, dtype=float)
+    s = s[np.isfinite(s)]
+    for_other, for_this = int(np.sum(s > 0.5)), int(np.sum(s < -0.5))
+    return bool(s.sum() >= OTHER_COPY_MM and for_other >= OTHER_COPY_FRAMES and for_other >= 3 * for_this)
+
+
+def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig, trial: str,
+                            *, steps: VisionSteps = VisionSteps(), flagged: frozenset[int] = frozenset()
+                            ) -> list[str]:
+    """Measure a registration's frames again on the doubled walls' other copy where the array
+    touches that copy and not the registered one (:func:`prefers_other_copy`).
+
+    The copies of a wall seen twice fit the spiral equally well, and where their parallax runs
+    along the insertion axis the array outside the entry cannot tell them apart. Inside, the
+    array presses on the outer wall's real copy: on the other it stands off by about the
+    parallax (contact missed) or crosses it. The epoch's registration in ``log.epochs`` is
+    replaced by :meth:`~tympani.vision.registration.Registration.other_copy` and its rows (by
+    ``reg_epoch``) in place. The evidence comes from every frame whose centre line was measured
+    (refused or not at the last step, where an unclear contact start is often the wrong copy's
+    doing), but for the frames in ``flagged``: those the motion checks marked (a tip misread).
+
+    Returns
+    -------
+    list of str
+        A note for each registration switched.
+    """
+    notes = []
+    for k, epoch in enumerate(log.epochs):
+        registration = epoch.registration
+        if not getattr(registration, "walls_doubled", False) or not epoch.prepared:
+            continue
+        support = np.array([r.get("other_copy_mm", math.nan) for r in rows
+                            if r["reg_epoch"] == epoch.index and r["frame"] not in flagged], dtype=float)
+        if not prefers_other_copy(support):
+            continue
+        other = registration.other_copy()
+        lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
+        plan = steps.prepare_measurement(other, epoch.plan.image_shape, cfg.phantom, cfg.array, cfg.measure, **lens)
+        log.epochs[k] = Epoch(epoch.index, epoch.frame, other, plan, epoch.n_frames_used, epoch.trigger)
+        # the frames measured with it (frames of a lost span, never measured, stay as they are)
+        at = {row["frame"]: i for i, row in enumerate(rows) if row["reg_epoch"] == epoch.index and "time_ms" in row}
+        for frame in _frames_between(source, min(at) - 1, max(at) + 1):
+            if frame.index in at:
+                m = try_measure(steps, to_gray(frame.image), plan, cfg)
+                result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
+                          if isinstance(m, Exception) else m.to_row())
+                rows[at[frame.index]] = frame_row(trial, frame, result, epoch.index)
+        notes.append(f"walls show twice: frames {min(at)}-{max(at)} measured again on their other copy, which the "
+                     f"array touches ({support.sum():.1f} mm of centre line fit it better, over "
+                     f"{int(np.sum(support > 0.5))} frames)")
+    return notes
 
 
 def remeasure_after_moves(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig, trial: str,

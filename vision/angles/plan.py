@@ -83,6 +83,9 @@ class MeasurePlan:
     refusal : str or None
         Why no frame of this registration can be measured (the array too small in the image,
         see ``MeasureConfig.min_tip_px``), or None.
+    copy_shift_mm : tuple of float
+        Where walls show twice, the phantom-frame vector (mm) from the registered walls to their
+        other copy (the registration's ``parallax_px``); ``(0, 0)`` for single walls.
     """
 
     pose: CameraPose
@@ -108,6 +111,7 @@ class MeasurePlan:
     station_theta: np.ndarray
     r_tip_mm: float
     refusal: str | None = None
+    copy_shift_mm: tuple[float, float] = (0.0, 0.0)
 
     @property
     def step_mm(self) -> float:
@@ -270,5 +274,15 @@ def prepare_measurement(
         u=u, p_mm=p, point_mm=pts, normal=nrm, half_mm=half, i_start=i_start,
         in_view=np.all(inside | ~interior, axis=0),
         angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)),
-        refusal=_scale_refusal(ppm, array, cfg),
+        refusal=_scale_refusal(ppm, array, cfg), copy_shift_mm=_copy_shift_mm(registration, pose),
     )
+
+
+def _copy_shift_mm(registration: HasPose | CameraPose, pose: CameraPose) -> tuple[float, float]:
+    """The registration's ``parallax_px`` (px, image) as a phantom-frame vector (mm); zero for
+    single walls or a bare pose."""
+    shift = getattr(registration, "parallax_px", (0.0, 0.0)) if getattr(registration, "walls_doubled", False) else (
+        0.0, 0.0)
+    centre = np.array([pose.centre_x_px, pose.centre_y_px])
+    a, b = pose.to_phantom(np.vstack([centre, centre + np.asarray(shift, dtype=float)]))
+    return float(b[0] - a[0]), float(b[1] - a[1])

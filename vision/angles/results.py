@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tympani.vision.angles.centreline import CentreLine
@@ -88,6 +90,62 @@ def contact_run(gaps: np.ndarray, tol: np.ndarray | float, cl: Ragged, cfg: Meas
     return touching[cl.start], i0, i1, frac
 
 
+# Frames whose tip is short of this angle (rad) say nothing of which copy of doubled walls the
+# array touches (:func:`other_copy_support`).
+_COPY_TIP_RAD = math.pi
+
+
+def other_copy_support(gaps: np.ndarray, station: np.ndarray, cl: Ragged, plan: MeasurePlan,
+                       tip_theta: np.ndarray) -> np.ndarray:
+    """Per frame, how much more of its centre line (mm) the walls' other copy fits than the
+    registered one, where walls show twice (NaN for single walls, and for frames whose tip is
+    short of half a turn).
+
+    The array presses on the outer wall in a run that ends at its tip, and it cannot cross the
+    wall: for each copy, the points of the contact run from the tip (gap within
+    ``contact_tol_mm`` plus ``gap_resolution_px``, :func:`contact_run`) count 1 and the points
+    where the array would cross the wall (gap below minus that) −2. On the other copy each gap
+    grows by the copies' shift along the point's outward normal; only points where that shift
+    exceeds 1.5 times the tolerance count (nearer, the copies' walls are not told apart). An array
+    riding a wall at a constant gap near the parallax, or across it, says the registration
+    took the copy the array does not touch. Only frames whose tip is past half a turn say
+    so: there an array that touches the outer wall presses on it along a stretch over which
+    the wall's normal turns through a large angle, which a copy shifted by one image vector
+    cannot follow. Nearer the entry the channel turns little, and an array floating at about
+    the parallax from a wall looks like one touching the other copy (seen on independent
+    renders in a third of the videos whose walls show twice).
+
+    Parameters
+    ----------
+    gaps : ndarray
+        Gap (mm) to the registered outer wall at each centre-line point, tip first, frames laid
+        end to end (``cl``).
+    station : ndarray of int
+        The station of each point.
+    cl : Ragged
+        The frames' points.
+    plan : MeasurePlan
+        The plan (``copy_shift_mm``, ``normal``, the settings, the scale).
+    tip_theta : ndarray
+        Each frame's tip angle (rad).
+    """
+    shift = np.asarray(plan.copy_shift_mm, dtype=float)
+    if not shift.any():
+        return np.full(len(cl.n), np.nan)
+    cfg = plan.cfg
+    tol = cfg.contact_tol_mm + cfg.gap_resolution_px / float(plan.pose.px_per_mm)
+    along = plan.normal[station] @ shift
+    told = np.abs(along) >= 1.5 * tol  # the copies' walls apart by more than the gaps' resolution
+
+    def fit(g: np.ndarray) -> np.ndarray:
+        contact, i0, _, _ = contact_run(g, tol, cl, cfg)
+        run = contact[cl.row] & (cl.local <= (i0 - cl.start)[cl.row])
+        return cl.count(run & told) - 2.0 * cl.count(g < -tol)
+
+    support = (fit(gaps + along) - fit(gaps)) * cfg.angle_step_mm
+    return np.where(tip_theta >= _COPY_TIP_RAD, support, np.nan)
+
+
 # A centre-line point whose angle differs from its station's by more than this (rad) lies across a
 # wall: its radius is nearer another turn's (a difference of 2 pi, less a little curvature).
 _CROSSED_RAD = 1.0
@@ -128,6 +186,7 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     station = np.empty(len(cl.row), dtype=np.intp)
     station[cl.start], station[inner] = los + top, los[kept.row] + keep
     crossed = cl.count(np.abs(theta - plan.station_theta[station]) > _CROSSED_RAD) > 0
+    other_copy = other_copy_support(gaps, station, cl, plan, theta[cl.start])
     # contact_angles' rule, with the tolerance raised by any bias of the measured gaps
     tol = contact_tolerance(gaps, cl, cfg)
     contact, i0, i1, frac = contact_run(gaps, tol, cl, cfg)
@@ -158,9 +217,12 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     outline[ol.start[kept.row] + 2 * kept.n[kept.row] - kept.local] = line[at] + side
     results = []
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
-               bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist())
-    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b in rows:
+               bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist(),
+               other_copy.tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b, other_b \
+            in rows:
         extras["depth_mm"] = depth_b
+        extras["other_copy_mm"] = other_b
         if crossed_b:
             # kept within the 72 characters an annotated frame shows of a reason
             results.append(failure(f"centre line across a wall into the next turn (tip read at {t_tip:.2f} rad)",

@@ -4,7 +4,7 @@ range (:func:`search_range`), :class:`Registration` and :class:`RegistrationErro
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from tympani.vision.geometry import CameraPose
 
@@ -174,6 +174,20 @@ class Registration:
     second_copy_contrast: float = float("nan")
     array_axis_offset_px: float = float("nan")
     _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
+
+    def other_copy(self) -> "Registration":
+        """The same registration with the doubled walls' other copy as the first: the pose
+        moved by :attr:`parallax_px`, the parallax reversed and the contrast inverted; the
+        array's axis offset, measured against the first copy's axis, becomes NaN. Single walls:
+        the registration itself."""
+        if not self.walls_doubled:
+            return self
+        dx, dy = self.parallax_px
+        p = self.pose
+        pose = CameraPose(float(p.centre_x_px + dx), float(p.centre_y_px + dy), p.rotation_rad, p.px_per_mm,
+                          p.mirrored)
+        return replace(self, pose=pose, parallax_px=(-float(dx), -float(dy)),
+                       second_copy_contrast=1.0 / self.second_copy_contrast, array_axis_offset_px=float("nan"))
 
     @property
     def parallax_mm(self) -> float:

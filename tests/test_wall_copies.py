@@ -1,0 +1,95 @@
+"""Walls that show twice, registered on the copy the array does not touch.
+
+The two copies of a doubled wall fit the spiral equally well; where their parallax runs along
+the insertion axis nothing outside the channel tells them apart. Inside, the array presses on
+the real copy of the outer wall: on the other copy the gap reads about the parallax (contact
+missed) or the array crosses it. The extraction then measures the video again on the other
+copy (``remeasure_on_other_copy``); on the right copy it leaves the registration alone.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
+from tympani.pipeline.extract.video import extract_video, prefers_other_copy
+from tympani.vision.geometry import CameraPose
+from tympani.vision.registration import Registration
+from tympani.vision.rendering import Appearance, Nuisance, VideoSpec, random_pose, render_video
+
+W, H = 640, 480
+
+
+def _video(tmp_path: Path, seed: int) -> tuple[Path, CameraPose, tuple[float, float], object]:
+    """An insertion from 5 to 16 mm (23 frames), walls doubled 0.25-0.4 mm apart in a random
+    image direction at 60-90 % contrast; returns the video, the true pose, the second copy's
+    shift (px) and the truth table."""
+    rng = np.random.default_rng(seed)
+    pose = random_pose(rng, W, H, px_per_mm=(20.0, 30.0))
+    parallax_mm, direction = float(rng.uniform(0.25, 0.4)), float(rng.uniform(-math.pi, math.pi))
+    nuisance = Nuisance(doubled_wall_mm=parallax_mm, doubled_wall_contrast=float(rng.uniform(0.6, 0.9)),
+                        doubled_wall_direction_rad=direction)
+    spec = VideoSpec(pose, W, H, fps=2.0, speed_mm_s=1.0, start_depth_mm=5.0, end_depth_mm=16.0,
+                     appearance=Appearance(), nuisance=nuisance)
+    path = tmp_path / f"v{seed}.avi"
+    truth = render_video(path, spec, seed=seed)
+    shift = (parallax_mm * pose.px_per_mm * math.cos(direction), parallax_mm * pose.px_per_mm * math.sin(direction))
+    return path, pose, shift, truth
+
+
+def _steps(registration: Registration) -> VisionSteps:
+    return VisionSteps(register=lambda frames, phantom, *args: registration)
+
+
+@pytest.mark.parametrize("seed", [11, 13, 14, 15, 16])
+def test_a_registration_on_the_copy_the_array_does_not_touch_is_measured_again(tmp_path: Path, seed: int) -> None:
+    """Given the registration of the wrong copy (the true pose moved by the parallax), the
+    extraction switches to the true one and measures every frame as it does given the true
+    copy, which it keeps."""
+    path, pose, shift, truth = _video(tmp_path, seed)
+    right = Registration(pose=pose, residual_px=0.5, image_size=(W, H), walls_doubled=True, parallax_px=shift,
+                         second_copy_contrast=0.8)
+    kept, _ = extract_video(path, ExtractConfig(), steps=_steps(right))
+    assert not any("other copy" in w for w in kept.attrs["warnings"])
+    assert kept.attrs["registrations"][0]["centre_x_px"] == pose.centre_x_px
+
+    table, _ = extract_video(path, ExtractConfig(), steps=_steps(right.other_copy()))
+    assert any("measured again on their other copy" in w for w in table.attrs["warnings"]), table.attrs["warnings"]
+    switched = table.attrs["registrations"][0]
+    assert math.hypot(switched["centre_x_px"] - pose.centre_x_px, switched["centre_y_px"] - pose.centre_y_px) < 1e-9
+    angles = ["theta_tip", "theta_bot", "theta_con"]
+    assert (table["ok"] == kept["ok"]).all()
+    np.testing.assert_allclose(table[angles].to_numpy(float), kept[angles].to_numpy(float), atol=1e-9)
+    # and the true copy's contact is right where it is measured
+    contact = (truth["theta_con"] > 0.05).to_numpy() & kept["ok"].to_numpy()
+    assert contact.sum() >= 5
+
+
+def test_without_evidence_past_half_a_turn_the_copy_stays(tmp_path: Path) -> None:
+    """Seed 12: on the wrong copy every frame past half a turn is refused before its centre
+    line is complete, so nothing says which copy the array touches: the registration stays,
+    and those frames stay refused (none is reported on the wrong copy)."""
+    path, pose, shift, truth = _video(tmp_path, 12)
+    right = Registration(pose=pose, residual_px=0.5, image_size=(W, H), walls_doubled=True, parallax_px=shift,
+                         second_copy_contrast=0.8)
+    wrong = right.other_copy()
+    table, _ = extract_video(path, ExtractConfig(), steps=_steps(wrong))
+    assert not any("other copy" in w for w in table.attrs["warnings"])
+    assert table.attrs["registrations"][0]["centre_x_px"] == wrong.pose.centre_x_px
+    assert not table["ok"][(truth["theta_tip"] >= math.pi).to_numpy()].any()
+
+
+def test_the_copy_is_switched_only_on_enough_evidence() -> None:
+    """3 mm of centre line in all, from at least three frames, three times as many as say the
+    registered copy; NaN (a tip short of half a turn) is no evidence."""
+    assert prefers_other_copy(np.array([np.nan, np.nan, 1.0, 1.0, 1.0, 0.0]))
+    assert not prefers_other_copy(np.array([9.0, 9.0, 0.4, 0.0, 0.0, 0.0]))  # two frames
+    assert prefers_other_copy(np.array([0.0, 0.0, 2.0, 2.0, 2.0, -1.0]))  # three to one
+    assert not prefers_other_copy(np.array([0.0, 2.0, 2.0, 2.0, -1.0, -1.0]))
+    assert prefers_other_copy(np.array([0.0, 0.0, 2.0, 2.0, 2.0, -0.4]))  # -0.4: for neither
+    assert not prefers_other_copy(np.array([0.0, 0.0, 0.6, 0.6, 0.6, 0.6]))  # 2.4 mm in all
+    assert not prefers_other_copy(np.full(6, np.nan))
