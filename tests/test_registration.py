@@ -386,6 +386,13 @@ def test_registration_to_dict_has_the_pose_keys_and_round_trips():
     assert back.line_half_width_px == pytest.approx(reg.line_half_width_px)
     minimal = Registration.from_dict({k: d[k] for k in POSE_KEYS})
     assert minimal.pose == back.pose
+    # as the registration JSON has it: NaN written null
+    from tympani.pipeline.io import to_jsonable
+
+    unknown = {**d, "array_axis_offset_px": float("nan"), "second_copy_contrast": float("nan")}
+    read = Registration.from_dict(json.loads(json.dumps(to_jsonable(unknown), allow_nan=False)))
+    assert math.isnan(read.array_axis_offset_px) and math.isnan(read.second_copy_contrast)
+    assert read.pose == back.pose
     # the pose keys alone are enough to check a frame (without the line half width, the walls'
     # edges are expected on the walls themselves, so the residual grows by about it)
     assert check(frame, minimal) < reg.residual_px + abs(reg.line_half_width_px) + 0.5

@@ -224,7 +224,14 @@ class Registration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Registration":
-        """Inverse of :meth:`to_dict`; only the six pose keys are required."""
+        """Inverse of :meth:`to_dict`, also of the registration JSON (where NaN is written
+        ``null``); only the six pose keys are required."""
+        nan = float("nan")
+
+        def num(key: str, default: float = nan) -> float:
+            value = d.get(key, default)
+            return nan if value is None else float(value)
+
         pose = CameraPose(
             float(d["centre_x_px"]),
             float(d["centre_y_px"]),
@@ -232,20 +239,19 @@ class Registration:
             float(d["px_per_mm"]),
             bool(d["mirrored"]),
         )
-        nan = float("nan")
         return cls(
             pose=pose,
-            residual_px=float(d["residual_px"]),
-            inlier_fraction=float(d.get("inlier_fraction", nan)),
-            visible_fraction=float(d.get("visible_fraction", nan)),
-            matched_length_mm=float(d.get("matched_length_mm", nan)),
-            line_half_width_px=float(d.get("line_half_width_px", nan)),
-            edge_sigma_px=float(d.get("edge_sigma_px", 1.0)),
+            residual_px=num("residual_px"),
+            inlier_fraction=num("inlier_fraction"),
+            visible_fraction=num("visible_fraction"),
+            matched_length_mm=num("matched_length_mm"),
+            line_half_width_px=num("line_half_width_px"),
+            edge_sigma_px=num("edge_sigma_px", 1.0),
             image_size=(int(d.get("image_width_px", 0)), int(d.get("image_height_px", 0))),
             walls_doubled=bool(d.get("walls_doubled", False)),
-            parallax_px=(float(d.get("wall_parallax_x_px", 0.0)), float(d.get("wall_parallax_y_px", 0.0))),
-            second_copy_contrast=float(d.get("second_copy_contrast", nan)),
-            array_axis_offset_px=float(d.get("array_axis_offset_px", nan)),
+            parallax_px=(num("wall_parallax_x_px", 0.0), num("wall_parallax_y_px", 0.0)),
+            second_copy_contrast=num("second_copy_contrast"),
+            array_axis_offset_px=num("array_axis_offset_px"),
         )
 
 
