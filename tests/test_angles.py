@@ -827,6 +827,46 @@ def test_doubled_walls_do_not_lead_the_tip_into_the_next_turn() -> None:
     assert np.median(bot_err) <= 0.03, np.round(bot_err, 3)
 
 
+def _dark_ahead(gray: np.ndarray, pose: CameraPose, theta_tip: float, length_mm: float, level: float) -> np.ndarray:
+    """``gray`` with the channel's full width painted ``level`` from the tip to ``length_mm``
+    further along it (a shadow or a dark fluid patch ahead of the tip: dark, but without the
+    array's edges)."""
+    r = float(backbone_radius(theta_tip))
+    theta = np.linspace(theta_tip + 0.02 / r, theta_tip + length_mm / r, 40)
+    pts, _, nrm = backbone_frame(theta)
+    half = 0.5 * channel_width(theta)[:, None]
+    outline = np.vstack([pts + half * nrm, (pts - half * nrm)[::-1]])
+    out = gray.copy()
+    cv2.fillPoly(out, [np.round(pose.to_image(outline) * 16).astype(np.int32)], float(level), cv2.LINE_AA, 4)
+    return out
+
+
+def test_a_dark_stretch_past_the_arrays_edges_is_refused() -> None:
+    """A patch as dark as the array filling the channel for 1.1-1.4 mm right ahead of the tip
+    (six random poses at 20-35 px/mm, depths 8 and 12 mm): the dark run goes on past the
+    array's last edges, and the tip read at its end is 0.3-0.5 rad too far. Such a frame is
+    refused unless its edges lie within 1 mm of the dark run's end for the default array (its
+    first band's far end from the tip and 0.3 mm, ``band_edge_mm``). Measured: all 12 refused;
+    with the reach at 1.5 mm, 6 of the 12 read 0.38-0.45 rad too far (the others refused by
+    other rules)."""
+    far, off_before = 0, 0
+    for seed in range(6):
+        rng = np.random.default_rng(960 + seed)
+        pose = random_pose(rng, W, H, px_per_mm=(20.0, 35.0))
+        look = random_appearance(rng)
+        scene = Scene(pose, W, H, look, Nuisance(), rng=rng)
+        for depth in (8.0, 12.0):
+            state = pose_at_depth(depth)
+            gray = _dark_ahead(_gray(scene.render(state)), pose, state.truth.theta_tip,
+                               float(rng.uniform(1.1, 1.4)), look.array_level)
+            m = measure_frame(gray, _reg(pose))
+            far += m.ok and abs(m.theta_tip - state.truth.theta_tip) > 0.1
+            before = measure_frame(gray, _reg(pose), cfg=MeasureConfig(band_edge_mm=0.8))
+            off_before += before.ok and abs(before.theta_tip - state.truth.theta_tip) > 0.3
+    assert far == 0, far
+    assert off_before >= 6, off_before  # the scenario is the failure the rule fixes
+
+
 def test_long_bright_bands_do_not_end_the_array() -> None:
     """Metal bands 0.85-0.95 mm long, 50 grey levels brighter than the fluid (clipped at 255),
     the dark body between them 0.5-0.7 mm: a band is longer than the fluid-like gap the array's
@@ -854,8 +894,8 @@ def test_long_bright_bands_do_not_end_the_array() -> None:
             state = pose_at_depth(depth, array=array)
             gray = _gray(scene.render(state))
             reg = reg or register([gray])
-            m = measure_frame(gray, reg)
-            before = measure_frame(gray, reg, cfg=MeasureConfig(band_level=np.inf))
+            m = measure_frame(gray, reg, array=array)  # told the bands, so their length at the tip
+            before = measure_frame(gray, reg, array=array, cfg=MeasureConfig(band_level=np.inf))
             if m.ok:
                 error = abs(m.theta_tip - state.truth.theta_tip)
                 right += error <= 0.05

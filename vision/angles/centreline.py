@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tympani.vision.angles.arrays import odd_ceil, take2d
+from tympani.vision.angles.config import MeasureConfig
 from tympani.vision.angles.edges import Edges
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import (
@@ -127,10 +128,26 @@ def _centre_offsets(
     return v_c, (use_in | use_out) & (s >= cap_min * 0.5 * array.tip_diameter_mm), radius
 
 
+def tip_reach(array: ElectrodeArray, cfg: MeasureConfig) -> float:
+    """Farthest (mm) the tip may lie past the last station with measured edges: the array's
+    first band's far end from the tip (no band: nothing) plus ``cfg.band_edge_mm``, at most
+    ``cfg.tip_reach_mm``.
+
+    Parameters
+    ----------
+    array : ElectrodeArray
+        The array (``first_band_mm``, ``band_length_mm``, ``n_bands``; mm).
+    cfg : MeasureConfig
+        Settings (``band_edge_mm``, ``tip_reach_mm``; mm).
+    """
+    band_end = array.first_band_mm + array.band_length_mm if array.n_bands > 0 else 0.0
+    return float(min(cfg.tip_reach_mm, band_end + cfg.band_edge_mm))
+
+
 def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine | str]:
     """Stage 3: each frame's centre line, tip and gap to the outer wall, or why there is none: no
     edges, the edges seen on both sides do not have the array's width, or no edges within
-    ``tip_reach_mm`` of the tip (the dark run goes on where no array shows: a bubble's rim, a
+    :func:`tip_reach` of the tip (the dark run goes on where no array shows: a bubble's rim, a
     shadow, a doubled wall line)."""
     cfg, array, step, ppm = plan.cfg, plan.array, plan.step_mm, float(plan.pose.px_per_mm)
     u0, du = float(plan.u[0]), float(plan.u[1] - plan.u[0])
@@ -173,9 +190,10 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     last = rg.last(measured)
     half_tip = plan.half_mm[lo + n - 1]
     tip_v = extrapolate_ragged(local.astype(float), v_c, measured & (local >= (last - 1.0 / step)[row]), 1.0 / step, rg)
-    bare = (n - 1 - last) * step > cfg.tip_reach_mm  # no array edges near the tip
+    reach = tip_reach(array, cfg)
+    bare = (n - 1 - last) * step > reach  # no array edges near the tip
     for b in np.flatnonzero(bare):
-        out[int(live[b])] = f"no array edges within {cfg.tip_reach_mm:g} mm of the dark run's end"
+        out[int(live[b])] = f"no array edges within {reach:.2g} mm of the dark run's end"
     tip_u = np.minimum(np.maximum(tip_v / half_tip, -1.0), 1.0)
     k0 = np.maximum(n - 1 - span, 0)
     tail = Ragged.of([len(edges[b].fluid) - k for b, k in zip(live.tolist(), k0.tolist())])

@@ -159,6 +159,14 @@ class MeasureConfig:
         Farthest (mm) the centre line is extrapolated from the last station with measured edges
         to the tip; a frame whose dark run goes on farther is not measured (what continues it
         is not the array's body: a bubble's rim, a shadow, a doubled wall line).
+    band_edge_mm : float
+        Length (mm) of the array's body beside a metal band whose edges may be lost to the
+        band's glare and blur. The tip may lie at most this much further than the array's
+        first band's far end (``first_band_mm + band_length_mm`` from the tip) past the last
+        station with measured edges, and at most ``tip_reach_mm``: 1 mm for the default array.
+        A dark run that goes on further past the edges is seldom the array (on independent
+        renders three frames in four with 1-1.5 mm were misread: a bubble's rims and bright
+        inside, a dark patch ahead of the tip).
     tip_width_mm : float
         Length (mm) before the tip over which the array must show as the array: its inner edge
         found (``tip_inner_min``) and its centre line clear of the walls (``tip_wall_share``). A
@@ -230,6 +238,7 @@ class MeasureConfig:
     outlier_px: float = 1.5
     plateau_px: tuple[float, float] = (2.5, 4.0)
     tip_reach_mm: float = 1.5
+    band_edge_mm: float = 0.3
     tip_width_mm: float = 2.0
     tip_inner_min: float = 0.1
     tip_wall_share: float = 0.5
