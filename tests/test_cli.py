@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import subprocess
 import sys
 from dataclasses import replace
@@ -61,6 +63,8 @@ def test_console_script_help():
         (["extract", "v.mp4", "--out", "x", "--workers", "0"], "must be >= 1"),
         (["annotate", "v.mp4", "--out", "x", "--frames", "a,b"], "frame numbers"),
         (["annotate", "v.mp4", "--out", "x", "--frames", "1", "--every", "2"], "not allowed with"),
+        (["extract", "v.mp4", "--out", "x", "--array-first-band", "0.3"], "(FROM,LENGTH)"),
+        (["extract", "v.mp4", "--out", "x", "--array-first-band", "0.3,0"], "(FROM,LENGTH)"),
     ],
 )
 def test_bad_usage_is_exit_2_with_one_line(capsys, argv, fragment):
@@ -76,6 +80,16 @@ def test_extract_missing_video_is_exit_2(capsys, tmp_path, fake_vision):
                         steps=fake_vision)
     assert code == 2
     assert _one_line_error(err) == f"tympani: {tmp_path / 'nope.mp4'}: no such file or folder"
+
+
+def test_the_arrays_first_band_reaches_the_measurement(capsys, tmp_path, fake_vision):
+    good = fakes.write_video(tmp_path / "good.mp4", n=4)
+    code, _, _ = _run(capsys, "extract", str(good), "--out", str(tmp_path / "out"), "-q", "--array-first-band",
+                      "0.5,0.9", steps=fake_vision)
+    assert code == 0
+    text = (tmp_path / "out" / "good.provenance.json").read_text()
+    array = json.loads(text)["params"]["extract"]["array"]
+    assert (array["first_band_mm"], array["band_length_mm"]) == (0.5, 0.9)
 
 
 def test_extract_good_and_bad_videos(capsys, tmp_path, fake_vision):

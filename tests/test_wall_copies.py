@@ -45,18 +45,33 @@ def _steps(registration: Registration) -> VisionSteps:
     return VisionSteps(register=lambda frames, phantom, *args: registration)
 
 
-@pytest.mark.parametrize("seed", [11, 13, 14, 15, 16])
+def _right(pose: CameraPose, shift: tuple[float, float]) -> Registration:
+    return Registration(pose=pose, residual_px=0.5, image_size=(W, H), walls_doubled=True, parallax_px=shift,
+                        second_copy_contrast=0.8)
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13, 14, 15, 16])
+def test_the_copy_the_array_touches_is_kept(tmp_path: Path, seed: int) -> None:
+    """Given the true copy, the extraction keeps it: the array never says otherwise."""
+    path, pose, shift, truth = _video(tmp_path, seed)
+    kept, _ = extract_video(path, ExtractConfig(), steps=_steps(_right(pose, shift)))
+    assert not any("other copy" in w for w in kept.attrs["warnings"])
+    assert kept.attrs["registrations"][0]["centre_x_px"] == pose.centre_x_px
+    assert (truth["theta_con"] > 0.05).to_numpy()[kept["ok"].to_numpy()].sum() >= 5
+
+
+@pytest.mark.parametrize("seed", [11, 13, 14])
 def test_a_registration_on_the_copy_the_array_does_not_touch_is_measured_again(tmp_path: Path, seed: int) -> None:
     """Given the registration of the wrong copy (the true pose moved by the parallax), the
     extraction switches to the true one and measures every frame as it does given the true
-    copy, which it keeps."""
+    copy. (Of seeds 11-16, 11, 13 and 14 switch: on the wrong copy the tip stands off the
+    wall, or the array crosses it, past half a turn. On 15 and 16 too few frames there say so,
+    two and none: in the others the tip touches both copies' walls, where only the contact
+    run's length differs, which is no evidence, or the frame is refused; on 12 every frame
+    past half a turn is refused.)"""
     path, pose, shift, truth = _video(tmp_path, seed)
-    right = Registration(pose=pose, residual_px=0.5, image_size=(W, H), walls_doubled=True, parallax_px=shift,
-                         second_copy_contrast=0.8)
+    right = _right(pose, shift)
     kept, _ = extract_video(path, ExtractConfig(), steps=_steps(right))
-    assert not any("other copy" in w for w in kept.attrs["warnings"])
-    assert kept.attrs["registrations"][0]["centre_x_px"] == pose.centre_x_px
-
     table, _ = extract_video(path, ExtractConfig(), steps=_steps(right.other_copy()))
     assert any("measured again on their other copy" in w for w in table.attrs["warnings"]), table.attrs["warnings"]
     switched = table.attrs["registrations"][0]
@@ -64,9 +79,6 @@ def test_a_registration_on_the_copy_the_array_does_not_touch_is_measured_again(t
     angles = ["theta_tip", "theta_bot", "theta_con"]
     assert (table["ok"] == kept["ok"]).all()
     np.testing.assert_allclose(table[angles].to_numpy(float), kept[angles].to_numpy(float), atol=1e-9)
-    # and the true copy's contact is right where it is measured
-    contact = (truth["theta_con"] > 0.05).to_numpy() & kept["ok"].to_numpy()
-    assert contact.sum() >= 5
 
 
 def test_without_evidence_past_half_a_turn_the_copy_stays(tmp_path: Path) -> None:
@@ -74,9 +86,7 @@ def test_without_evidence_past_half_a_turn_the_copy_stays(tmp_path: Path) -> Non
     line is complete, so nothing says which copy the array touches: the registration stays,
     and those frames stay refused (none is reported on the wrong copy)."""
     path, pose, shift, truth = _video(tmp_path, 12)
-    right = Registration(pose=pose, residual_px=0.5, image_size=(W, H), walls_doubled=True, parallax_px=shift,
-                         second_copy_contrast=0.8)
-    wrong = right.other_copy()
+    wrong = _right(pose, shift).other_copy()
     table, _ = extract_video(path, ExtractConfig(), steps=_steps(wrong))
     assert not any("other copy" in w for w in table.attrs["warnings"])
     assert table.attrs["registrations"][0]["centre_x_px"] == wrong.pose.centre_x_px

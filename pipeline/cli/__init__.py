@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from tympani.pipeline.cli.argtypes import (UsageError, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int, share,
+from tympani.pipeline.cli.argtypes import (UsageError, band_pair, diameter_pair, int_list, nonneg_float, nonneg_int, positive_float, positive_int, share,
                                speed_list)
 from tympani.vision.errors import InputError, is_input_error
 
@@ -73,6 +73,10 @@ def _add_extract_options(parser: argparse.ArgumentParser, video_checks: bool = T
         _add_video_check_options(group)
     group.add_argument("--array-diameters", type=diameter_pair, default=None, metavar="TIP,BASE",
                        help="the electrode array's diameters in mm at its tip and its base (default 0.6,1.2)")
+    group.add_argument("--array-first-band", type=band_pair, default=None, metavar="FROM,LENGTH",
+                       help="the array's first metal band: its distance from the tip and its length in mm (default "
+                            "0.3,0.4); the tip may lie up to its far end and 0.3 mm past the array's last measured "
+                            "edges")
     group.add_argument("--calibration", metavar="JSON",
                        help="the camera's lens calibration (camera_matrix, dist_coeffs, image_size: OpenCV's model); "
                             "the lens is taken out of registration, checks and measurement")
@@ -98,6 +102,9 @@ def _extract_config(args: argparse.Namespace):
     calibration = LensCalibration.from_json(args.calibration) if args.calibration else None
     array = DEFAULT_ARRAY if args.array_diameters is None else replace(
         DEFAULT_ARRAY, tip_diameter_mm=args.array_diameters[0], base_diameter_mm=args.array_diameters[1])
+    if args.array_first_band is not None:
+        start, length = args.array_first_band
+        array = replace(array, first_band_mm=start, band_length_mm=length)
     checks = dict(glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
                   sparse_share=args.sparse_share) if hasattr(args, "glitch_rad") else {}
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
@@ -484,6 +491,7 @@ def _run_run(args: argparse.Namespace) -> int:
     command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []
     command += ["--array-diameters", ",".join(f"{d:g}" for d in args.array_diameters)] if args.array_diameters else []
+    command += ["--array-first-band", ",".join(f"{d:g}" for d in args.array_first_band)] if args.array_first_band else []
     command += ["--overwrite"] if args.overwrite else []
     command += ["--scheduler", args.scheduler] if args.scheduler else []
     with _scheduler(args, "run") as client:

@@ -100,6 +100,19 @@ def speed_list(text: str) -> tuple[float, ...]:
     return values
 
 
+def band_pair(text: str) -> tuple[float, float]:
+    """``FROM,LENGTH``: the electrode array's first metal band, its distance (mm) from the tip
+    (finite, >= 0) and its length (mm, finite, > 0)."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FROM,LENGTH of the first band in mm, got {text!r}") from None
+    if len(values) != 2 or not (0 <= values[0] < float("inf") and 0 < values[1] < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected the first band's distance from the tip (>= 0) and its length "
+                                         f"(> 0) in mm (FROM,LENGTH), got {text!r}")
+    return values[0], values[1]
+
+
 def diameter_pair(text: str) -> tuple[float, float]:
     """``TIP,BASE``: the electrode array's diameters (mm) at its tip and at its base, each finite and > 0."""
     try:

@@ -381,7 +381,7 @@ def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractL
                           if isinstance(m, Exception) else m.to_row())
                 rows[at[frame.index]] = frame_row(trial, frame, result, epoch.index)
         notes.append(f"walls show twice: frames {min(at)}-{max(at)} measured again on their other copy, which the "
-                     f"array touches ({support.sum():.1f} mm of centre line fit it better, over "
+                     f"array touches ({np.nansum(support):.1f} mm of centre line fit it better, over "
                      f"{int(np.sum(support > 0.5))} frames)")
     return notes
 

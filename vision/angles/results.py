@@ -102,13 +102,15 @@ def other_copy_support(gaps: np.ndarray, station: np.ndarray, cl: Ragged, plan: 
     short of half a turn).
 
     The array presses on the outer wall in a run that ends at its tip, and it cannot cross the
-    wall: for each copy, the points of the contact run from the tip (gap within
-    ``contact_tol_mm`` plus ``gap_resolution_px``, :func:`contact_run`) count 1 and the points
-    where the array would cross the wall (gap below minus that) −2. On the other copy each gap
-    grows by the copies' shift along the point's outward normal; only points where that shift
-    exceeds 1.5 times the tolerance count (nearer, the copies' walls are not told apart). An array
-    riding a wall at a constant gap near the parallax, or across it, says the registration
-    took the copy the array does not touch. Only frames whose tip is past half a turn say
+    wall. On the other copy each gap grows by the copies' shift along the point's outward
+    normal. Where the tip touches one copy's wall and not the other's (gap within
+    ``contact_tol_mm`` plus ``gap_resolution_px``, :func:`contact_run`), the points of its
+    contact run count 1 for that copy (only points where the shift exceeds 1.5 times the
+    tolerance: nearer, the copies' walls are not told apart); where the tip touches both, a run
+    longer on one copy says little (where the array leaves the wall its gap grows gradually).
+    A point where the array would cross a copy's wall (gap below minus the tolerance) counts
+    −2 for it. An array riding a wall at a constant gap near the parallax, or across it, says
+    the registration took the copy the array does not touch. Only frames whose tip is past half a turn say
     so: there an array that touches the outer wall presses on it along a stretch over which
     the wall's normal turns through a large angle, which a copy shifted by one image vector
     cannot follow. Nearer the entry the channel turns little, and an array floating at about
@@ -137,12 +139,13 @@ def other_copy_support(gaps: np.ndarray, station: np.ndarray, cl: Ragged, plan: 
     along = plan.normal[station] @ shift
     told = np.abs(along) >= 1.5 * tol  # the copies' walls apart by more than the gaps' resolution
 
-    def fit(g: np.ndarray) -> np.ndarray:
+    def run(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         contact, i0, _, _ = contact_run(g, tol, cl, cfg)
-        run = contact[cl.row] & (cl.local <= (i0 - cl.start)[cl.row])
-        return cl.count(run & told) - 2.0 * cl.count(g < -tol)
+        return contact, cl.count(contact[cl.row] & (cl.local <= (i0 - cl.start)[cl.row]) & told)
 
-    support = (fit(gaps + along) - fit(gaps)) * cfg.angle_step_mm
+    (this, run_this), (other, run_other) = run(gaps), run(gaps + along)
+    crossed = cl.count(gaps + along < -tol) - cl.count(gaps < -tol)
+    support = (np.where(this != other, run_other - run_this, 0) - 2.0 * crossed) * cfg.angle_step_mm
     return np.where(tip_theta >= _COPY_TIP_RAD, support, np.nan)
 
 
