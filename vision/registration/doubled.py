@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -883,20 +884,28 @@ def doubled_walls(
         if kind in best:
             found = _confirmed(best[kind][1], best[kind][2], edges, layers, model, fine, classes, cfg, b_per_rad,
                                limits, gray)
-            if found != "faded":
-                return found
+            if found is not _Verdict.FADED:
+                return None if found is _Verdict.SINGLE else found
     return None
+
+
+class _Verdict(Enum):
+    """Why :func:`_confirmed` keeps no copies."""
+
+    FADED = "the second copy no longer shows, or lies too near"
+    SINGLE = "one wall blurred into two ridges"
 
 
 def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray, model: WallModel, fine: WallModel,
                classes: tuple[float, ...], cfg: RegistrationConfig, b_per_rad: float,
-               limits: dict[str, float], gray: np.ndarray | None = None) -> tuple[_Copies, float] | str | None:
+               limits: dict[str, float], gray: np.ndarray | None = None) -> tuple[_Copies, float] | _Verdict:
     """The last stage of :func:`doubled_walls` for one plausible candidate: refined on the
     ``fine`` walls, turned along the valley where that fits better, and kept when its second
     copy still shows, lies far enough away and is not a blurred wall's second ridge; returns
     the copies named stronger first and the second copy's relative contrast (``gray``, the frame,
-    tells two blurred lines from one smeared line), ``"faded"`` when
-    the second copy no longer shows (or lies too near), or None for a blurred single wall."""
+    tells two blurred lines from one smeared line), or why not: :attr:`_Verdict.FADED` when
+    the second copy no longer shows (or lies too near), :attr:`_Verdict.SINGLE` for a blurred
+    single wall."""
     copies = _refine_copies(copies, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
@@ -909,7 +918,7 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
     least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
     shows = _second_shows(copies, support, layers, fine, classes) if by_array else support.second_is_real
     if not (shows and math.hypot(*copies.shift) >= least):
-        return "faded"
+        return _Verdict.FADED
     shift = np.asarray(copies.shift)
     magnitude = edges.edge_map.magnitude
     if max(_blur_ratio(magnitude, copies.pose, model, shift),
@@ -917,7 +926,7 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
         # two lines with the background between them are copies even where blur weakens them
         filled = _filled_between(gray, copies, model) if gray is not None and len(classes) == 2 else math.nan
         if not filled < _MAX_FILLED:
-            return None
+            return _Verdict.SINGLE
     contrast = _copy_contrast(copies, edges.edge_map.magnitude, fine, classes)
     if contrast > 1.0:
         copies, contrast = copies.swapped(), 1.0 / contrast
