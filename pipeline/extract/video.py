@@ -366,14 +366,14 @@ def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractL
             continue
         support = np.array([r.get("other_copy_mm", math.nan) for r in rows
                             if r["reg_epoch"] == epoch.index and r["frame"] not in flagged], dtype=float)
-        if not prefers_other_copy(support):
+        # the frames measured with it (frames of a lost span, never measured, stay as they are)
+        at = {row["frame"]: i for i, row in enumerate(rows) if row["reg_epoch"] == epoch.index and "time_ms" in row}
+        if not at or not prefers_other_copy(support):
             continue
         other = registration.other_copy()
         lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
         plan = steps.prepare_measurement(other, epoch.plan.image_shape, cfg.phantom, cfg.array, cfg.measure, **lens)
         log.epochs[k] = Epoch(epoch.index, epoch.frame, other, plan, epoch.n_frames_used, epoch.trigger)
-        # the frames measured with it (frames of a lost span, never measured, stay as they are)
-        at = {row["frame"]: i for i, row in enumerate(rows) if row["reg_epoch"] == epoch.index and "time_ms" in row}
         for frame in _frames_between(source, min(at) - 1, max(at) + 1):
             if frame.index in at:
                 m = try_measure(steps, to_gray(frame.image), plan, cfg)
