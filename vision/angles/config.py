@@ -277,7 +277,10 @@ class FrameMeasurement:
         :class:`~tympani.vision.geometry.ElectrodeArray`'s, median over the stations where both show;
         NaN where fewer than 10 do: about 1.01 when the model is right), ``bare_tip_mm`` (length
         of the array, mm, between its last station with measured edges and the tip: the tip's
-        offset is extrapolated over it), ``time_ms`` (ms spent on the frame).
+        offset is extrapolated over it), ``other_copy_mm`` (where walls show twice, how much more
+        of the centre line the walls' other copy fits, see
+        :func:`~tympani.vision.angles.results.other_copy_support`; NaN for single walls or a tip
+        short of half a turn), ``time_ms`` (ms spent on the frame).
     timings : dict of str to float
         Seconds spent per stage (``survey``, ``edges``, ``centre_line``, ``angles``); not in
         :meth:`to_row`.
