@@ -24,7 +24,7 @@ from tympani.pipeline.extract import batch
 from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
-from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches, flag_sparse
+from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches, flag_lone, flag_sparse
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -255,6 +255,24 @@ def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
     assert flag_glitches(_angle_rows([1.0, 5.0, 1.0, 1.0], [1.0] * 4), 0.25) == 0
 
 
+def test_flag_lone_marks_frames_with_no_measured_neighbour_within_reach():
+    """Frames 6 and 10 have no other measured frame within 3 frames (1, 6, 10 and 14 lie 4-5
+    apart): marked; 0 and 1 check each other, 17 has 14 three frames away; a video of fewer
+    than 7 frames, or a reach of 0, is left alone."""
+    def rows(measured, n=20):
+        return [dict(frame=i, ok=i in measured, theta_tip=1.0, theta_bot=0.5, theta_con=0.5, reason="")
+                for i in range(n)]
+
+    r = rows({0, 1, 6, 10, 14, 17})
+    assert flag_lone(r, 3) == 2
+    assert [x["frame"] for x in r if x["ok"]] == [0, 1, 14, 17]
+    assert r[10]["reason"] == "unchecked: no other frame measured within 3 frames" and math.isnan(r[6]["theta_tip"])
+    assert flag_lone(rows({10}), 3) == 1  # alone in its video
+    for measured, n, reach in (({0, 1, 6, 10}, 20, 0), ({2}, 6, 3), (set(), 20, 3)):
+        r = rows(measured, n)
+        assert flag_lone(r, reach) == 0 and sum(x["ok"] for x in r) == len(measured)
+
+
 def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
     """Frames 2-17 span 16 frames: 8 measured (half) marks all of them, 9 none; a span under
     ten frames, or a share of 0, is left alone; frames not ok before do not count."""
@@ -289,8 +307,8 @@ def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
 
 def test_extract_video_marks_a_mostly_unread_video_and_says_so(tmp_path):
     """Ten of 20 frames black (no array in view) and frame 2 too: 9 of the 19 frames from 0 to 18
-    are measured, and all of them are marked; --sparse-share 0 keeps them, and ten black frames
-    alone (10 of 19 measured) keep them too."""
+    are measured, and all of them are marked; --sparse-share 0 keeps them (but frame 0, alone,
+    without --lone-reach 0), and ten black frames alone (10 of 19 measured) keep them too."""
     from tympani.pipeline.cli import main
 
     odd = tuple(range(1, 20, 2))
@@ -299,8 +317,12 @@ def test_extract_video_marks_a_mostly_unread_video_and_says_so(tmp_path):
     assert not table["ok"].any()
     assert table.loc[table["frame"] == 4, "reason"].item().startswith("video mostly unread: 9 of the 19 frames")
     assert any("9 frame(s) marked not ok: video mostly unread" in w for w in table.attrs["warnings"])
-    assert main(["extract", str(path), "--out", str(tmp_path / "off"), "-q", "--sparse-share", "0"], steps=STEPS) == 0
+    assert main(["extract", str(path), "--out", str(tmp_path / "off"), "-q", "--sparse-share", "0", "--lone-reach", "0"],
+                steps=STEPS) == 0
     assert pd.read_csv(tmp_path / "off" / "s.angles.csv")["ok"].sum() == 9
+    # with the lone-frame check, frame 0 (4 frames from frame 4, the next measured) goes too
+    assert main(["extract", str(path), "--out", str(tmp_path / "lone"), "-q", "--sparse-share", "0"], steps=STEPS) == 0
+    assert pd.read_csv(tmp_path / "lone" / "s.angles.csv")["ok"].sum() == 8
     table, _ = extract_video(fakes.write_video(tmp_path / "t.mp4", n=20, dark=odd), fakes.fake_config(), steps=STEPS)
     assert table["ok"].sum() == 10
     assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--sparse-share", "1"]) == 2
