@@ -17,7 +17,7 @@ inner wall is closed with a circular arc about the backbone point.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -509,6 +509,11 @@ class CameraPose:
         c, s = np.cos(self.rotation_rad), np.sin(self.rotation_rad)
         flip = -1.0 if self.mirrored else 1.0
         return self.px_per_mm * np.array([[c, -s * flip], [-s, -c * flip]])
+
+    def moved(self, shift_px: tuple[float, float] | np.ndarray) -> "CameraPose":
+        """The same pose moved by ``shift_px`` (px, image x and y)."""
+        return replace(self, centre_x_px=float(self.centre_x_px + shift_px[0]),
+                       centre_y_px=float(self.centre_y_px + shift_px[1]))
 
     def to_image(self, xy_mm: np.ndarray) -> np.ndarray:
         """Phantom-frame points (mm), shape ``(n, 2)``, to image points (px)."""

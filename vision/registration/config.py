@@ -183,10 +183,7 @@ class Registration:
         if not self.walls_doubled:
             return self
         dx, dy = self.parallax_px
-        p = self.pose
-        pose = CameraPose(float(p.centre_x_px + dx), float(p.centre_y_px + dy), p.rotation_rad, p.px_per_mm,
-                          p.mirrored)
-        return replace(self, pose=pose, parallax_px=(-float(dx), -float(dy)),
+        return replace(self, pose=self.pose.moved((dx, dy)), parallax_px=(-float(dx), -float(dy)),
                        second_copy_contrast=1.0 / self.second_copy_contrast, array_axis_offset_px=float("nan"))
 
     @property

@@ -94,7 +94,7 @@ class _Copies:
     def swapped(self) -> "_Copies":
         """The same walls with the copies' roles exchanged."""
         dx, dy = self.shift
-        return _Copies(_translated(self.pose, (dx, dy)), self.half_width2, (-dx, -dy), self.half_width)
+        return _Copies(self.pose.moved((dx, dy)), self.half_width2, (-dx, -dy), self.half_width)
 
 
 @dataclass(frozen=True)
@@ -131,14 +131,6 @@ class _Support:
     def second_is_real(self) -> bool:
         """Whether the second copy is expected at enough points and found at enough of them."""
         return self.shown2 >= _MIN_SECOND_SHOWN * self.n_points and self.matched2 >= _MIN_SECOND_MATCHED * self.shown2
-
-
-def _translated(pose: CameraPose, shift: tuple[float, float] | np.ndarray) -> CameraPose:
-    """``pose`` moved by ``shift`` (px, image x and y)."""
-    return CameraPose(
-        float(pose.centre_x_px + shift[0]), float(pose.centre_y_px + shift[1]), pose.rotation_rad, pose.px_per_mm,
-        pose.mirrored,
-    )
 
 
 def _copy_offsets(
@@ -687,7 +679,7 @@ def _copy_starts(
         one, one_hw, one_tables = pose, half_width, tables
         if math.hypot(*v) >= 1.0:
             one, one_hw = refine_signed(
-                _translated(pose, v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
+                pose.moved(v), h, sfield, model, cfg.final_sigma_px, 10, max_half_width=cfg.max_line_half_width_px
             )
             one_tables = _surface_tables(one, sfield, sparse, classes, sg.t)
         masked, masked_hw = _shift_surface(_masked_tables(one_tables, sg.t, one_hw), sg)
@@ -701,7 +693,7 @@ def _copy_starts(
     if lines:
         shift, explained = _line_widening(pose, half_width, sfield, sparse)
         if math.hypot(*shift) >= _MIN_WIDENING_PX and explained >= _MIN_WIDENING_EXPLAINED:
-            starts.append((_Copies(_translated(pose, -0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))), None))
+            starts.append((_Copies(pose.moved(-0.5 * shift), 0.0, (float(shift[0]), float(shift[1]))), None))
     if guide is None:
         return starts, None
     if own_masked is None:
@@ -922,7 +914,7 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
     shift = np.asarray(copies.shift)
     magnitude = edges.edge_map.magnitude
     if max(_blur_ratio(magnitude, copies.pose, model, shift),
-           _blur_ratio(magnitude, _translated(copies.pose, shift), model, shift)) < _MAX_BLUR_RATIO:
+           _blur_ratio(magnitude, copies.pose.moved(shift), model, shift)) < _MAX_BLUR_RATIO:
         # two lines with the background between them are copies even where blur weakens them
         filled = _filled_between(gray, copies, model) if gray is not None and len(classes) == 2 else math.nan
         if not filled < _MAX_FILLED:
