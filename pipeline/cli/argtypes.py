@@ -8,6 +8,8 @@ error (exit status 2).
 from __future__ import annotations
 
 import argparse
+import math
+from typing import Callable
 
 
 class UsageError(Exception):
@@ -100,25 +102,25 @@ def speed_list(text: str) -> tuple[float, ...]:
     return values
 
 
-def band_pair(text: str) -> tuple[float, float]:
-    """``FROM,LENGTH``: the electrode array's first metal band, its distance (mm) from the tip
-    (finite, >= 0) and its length (mm, finite, > 0)."""
+def _pair(text: str, ok: Callable[[float, float], bool], expected: str) -> tuple[float, float]:
+    """Two comma-separated numbers that ``ok`` accepts, else a usage error saying ``expected``."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected FROM,LENGTH of the first band in mm, got {text!r}") from None
-    if len(values) != 2 or not (0 <= values[0] < float("inf") and 0 < values[1] < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected the first band's distance from the tip (>= 0) and its length "
-                                         f"(> 0) in mm (FROM,LENGTH), got {text!r}")
+        values = ()
+    if len(values) != 2 or not ok(*values):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return values[0], values[1]
+
+
+def band_pair(text: str) -> tuple[float, float]:
+    """``FROM,LENGTH``: the electrode array's first metal band, its distance (mm) from the tip
+    (finite, >= 0) and its length (mm, finite, > 0)."""
+    return _pair(text, lambda start, length: 0 <= start < math.inf and 0 < length < math.inf,
+                 "the first band's distance from the tip (>= 0) and its length (> 0) in mm (FROM,LENGTH)")
 
 
 def diameter_pair(text: str) -> tuple[float, float]:
     """``TIP,BASE``: the electrode array's diameters (mm) at its tip and at its base, each finite and > 0."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected TIP,BASE diameters in mm, got {text!r}") from None
-    if len(values) != 2 or not all(0 < v < float("inf") for v in values):
-        raise argparse.ArgumentTypeError(f"expected two positive diameters in mm (TIP,BASE), got {text!r}")
-    return values[0], values[1]
+    return _pair(text, lambda tip, base: 0 < tip < math.inf and 0 < base < math.inf,
+                 "two positive diameters in mm (TIP,BASE)")
