@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from tympani.pipeline.extract.records import mark_not_ok
 from tympani.pipeline.model.stats import mad_sd
 
 __all__ = ["KinematicsConfig", "InsertionFit", "fit_insertion", "insertion_depth", "flag_kinematics"]
@@ -260,10 +261,9 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
                          off_mm=round(worst, 3)))
         for j in range(a, b + 1):
-            rows[ok[j]].update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
-                               reason=("kinematics: " + why if why else
-                                       f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed "
-                                       f"insertion ({fit.speed_mm_s:.3g} mm/s)"))
+            mark_not_ok(rows[ok[j]], "kinematics: " + why if why else
+                        f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed insertion "
+                        f"({fit.speed_mm_s:.3g} mm/s)")
     note = ""
     if why:
         note = f"{len(off)} frame(s) marked not ok: {why}"
@@ -288,9 +288,8 @@ def _flag_order(rows: list[dict], seen: list[int], cfg: KinematicsConfig) -> tup
     for k in marked:
         j = int(other[k])
         row, partner = rows[seen[k]], rows[seen[j]]
-        row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
-                   reason=(f"kinematics: depth {d[k]:.2f} mm and {d[j]:.2f} mm in frame {partner['frame']} cannot "
-                           f"both hold (the insertion only goes in; too few frames to tell which is misread)"))
+        mark_not_ok(row, f"kinematics: depth {d[k]:.2f} mm and {d[j]:.2f} mm in frame {partner['frame']} cannot "
+                         "both hold (the insertion only goes in; too few frames to tell which is misread)")
         runs.append(dict(first=int(row["frame"]), last=int(row["frame"]), frames=1, off_mm=round(float(d[k] - d[j]), 3)))
     note = ""
     if marked:

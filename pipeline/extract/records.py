@@ -4,6 +4,7 @@ each frame's result (:class:`MeasuredFrame`). :mod:`tympani.pipeline.extract.str
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,6 +14,11 @@ from tympani.vision.frames import Frame
 
 __all__ = ["Check", "Epoch", "LostSpan", "ExtractLog", "MeasuredFrame"]
 
+
+
+def mark_not_ok(row: dict, reason: str) -> None:
+    """Mark an angles-table row not ok (in place): ``ok`` False, NaN angles, ``reason``."""
+    row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan, reason=reason)
 
 @dataclass(frozen=True)
 class Check:

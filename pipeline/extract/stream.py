@@ -178,6 +178,19 @@ def try_measure(steps: VisionSteps, gray: np.ndarray, plan: Any, cfg: ExtractCon
         return exc
 
 
+def measured_row(steps: VisionSteps, gray: np.ndarray, plan: Any, cfg: ExtractConfig) -> dict:
+    """``to_row()`` of :func:`try_measure`, or the failure row of the exception it raised."""
+    m = try_measure(steps, gray, plan, cfg)
+    return {"ok": False, "reason": f"measurement raised {one_line(m)}"} if isinstance(m, Exception) else m.to_row()
+
+
+def prepare_plan(steps: VisionSteps, registration: Any, shape: tuple[int, ...], cfg: ExtractConfig) -> Any:
+    """``steps.prepare_measurement`` of ``registration`` for frames of ``shape`` (px), with the
+    calibration's lens when there is one."""
+    lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
+    return steps.prepare_measurement(registration, shape, cfg.phantom, cfg.array, cfg.measure, **lens)
+
+
 def check_due(cfg: ExtractConfig, index: int, epoch: Epoch) -> bool:
     """Whether frame ``index``, measured with ``epoch``, gets a registration check."""
     return bool(cfg.recheck_every) and index % cfg.recheck_every == 0 and index > epoch.frame
@@ -395,8 +408,7 @@ class FrameMachine:
             return registration
         cfg = self.cfg
         t0 = time.perf_counter()
-        lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
-        plan = prepare(registration, first.gray.shape, cfg.phantom, cfg.array, cfg.measure, **lens)
+        plan = prepare_plan(self.steps, registration, first.gray.shape, cfg)
         self.log.add_time("prepare", time.perf_counter() - t0)
         refusal = getattr(plan, "refusal", None)
         if refusal:  # every frame of this registration fails the same way: say it once

@@ -26,10 +26,11 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.kinematics import KinematicsConfig, flag_kinematics
+from tympani.pipeline.extract.records import mark_not_ok
 from tympani.pipeline.extract.stream import (Check, Epoch, ExtractLog, frame_row, lens_undistorter, measure_frames,
-                                             try_measure)
+                                             measured_row, prepare_plan)
 from tympani.pipeline.force.forcelog import read_csv_columns
-from tympani.vision.errors import InputError, one_line
+from tympani.vision.errors import InputError
 from tympani.vision.frames import Frame, FrameSource, open_frames
 from tympani.vision.greyscale import to_gray
 from tympani.vision.registration.axis import beyond_array_precision
@@ -212,8 +213,7 @@ def flag_lone(rows: list[dict], reach: int) -> int:
     lone = set(measured[(before > reach) & (after > reach)].tolist())
     for row in rows:
         if row["ok"] and int(row["frame"]) in lone:
-            row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan,
-                       reason=f"unchecked: no other frame measured within {reach} frames")
+            mark_not_ok(row, f"unchecked: no other frame measured within {reach} frames")
     return len(lone)
 
 
@@ -347,9 +347,7 @@ def _go_over(source: FrameSource, rows: list[dict], at: dict[int, int], move: Mo
                 continue
             first = frame.index
         if new is not None and float(steps.check(seen, new.registration, cfg.phantom)) <= new_threshold:
-            m = try_measure(steps, gray, new.plan, cfg)
-            result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
-                      if isinstance(m, Exception) else m.to_row())
+            result = measured_row(steps, gray, new.plan, cfg)
             fitted += 1
         else:  # the camera still moving, the view blocked, or no new registration
             result = {"ok": False, "reason": f"the view changed at frame {first} (seen by the check at "
@@ -414,14 +412,11 @@ def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractL
         if not at or not prefers_other_copy(support):
             continue
         other = registration.other_copy()
-        lens = {} if cfg.calibration is None else {"lens": cfg.calibration.distort_points}
-        plan = steps.prepare_measurement(other, epoch.plan.image_shape, cfg.phantom, cfg.array, cfg.measure, **lens)
+        plan = prepare_plan(steps, other, epoch.plan.image_shape, cfg)
         log.epochs[k] = Epoch(epoch.index, epoch.frame, other, plan, epoch.n_frames_used, epoch.trigger)
         for frame in _frames_between(source, min(at) - 1, max(at) + 1):
             if frame.index in at:
-                m = try_measure(steps, to_gray(frame.image), plan, cfg)
-                result = ({"ok": False, "reason": f"measurement raised {one_line(m)}"}
-                          if isinstance(m, Exception) else m.to_row())
+                result = measured_row(steps, to_gray(frame.image), plan, cfg)
                 rows[at[frame.index]] = frame_row(trial, frame, result, epoch.index)
         notes.append(f"walls show twice: frames {min(at)}-{max(at)} measured again on their other copy, which the "
                      f"array touches ({np.nansum(support):.1f} mm of centre line fit it better, over "
@@ -589,7 +584,7 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
             why[j] = f"glitch: {key} {x[j]:.3f} rad, {off[j]:.2f} rad from its neighbours' median"
         marked |= far
     for j in np.flatnonzero(marked):
-        rows[ok[j]].update(ok=False, reason=why[j], theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
+        mark_not_ok(rows[ok[j]], why[j])
     return int(marked.sum())
 
 
@@ -639,7 +634,7 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
            f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
     for r in rows:
         if r["ok"]:
-            r.update(ok=False, reason=why, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan)
+            mark_not_ok(r, why)
     return f"{len(frames)} frame(s) marked not ok: {why}"
 
 
