@@ -144,6 +144,13 @@ class MeasureConfig:
     band_width_mm : float
         Widest (mm) such a bright stretch across the channel may be to be a band: the array's
         base with a margin for blur; a bubble's bright inside is wider.
+    resume_mm, resume_length_mm : float
+        A frame where another run of dark or band stations (gaps up to ``max_gap_mm``)
+        starts within ``resume_mm`` (mm) past the dark run's end and goes on for
+        ``resume_length_mm`` (mm) or more, longer than a bubble, with two or more bright
+        stretches in it, and where no bubble was found at or ahead of the tip, is not
+        measured: the array may go on there with its body too light to count as dark
+        throughout (the run ended at a shadow's edge), and where its tip lies is unknown.
     min_contrast : float
         Smallest fluid-minus-array difference (grey levels) of a usable frame.
     gap_smooth_mm : float
@@ -233,6 +240,8 @@ class MeasureConfig:
     max_gap_mm: float = 0.8
     band_level: float = 0.15
     band_width_mm: float = 1.5
+    resume_mm: float = 2.0
+    resume_length_mm: float = 2.0
     min_contrast: float = 18.0
     gap_smooth_mm: float = 0.4
     outlier_px: float = 1.5

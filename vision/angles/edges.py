@@ -34,7 +34,7 @@ class Edges:
     ``fine`` the strip (grey levels), ``fluid`` and ``contrast`` per station (grey levels),
     ``seed`` darkest offset, ``v_in``/``v_out`` edge offsets (mm) and ``ok_in``/``ok_out``
     where they are the array body's, ``level`` the coverage half way between the fluid and
-    the array beside it.
+    the array beside it, ``bubble`` whether an air bubble was found at or ahead of the tip.
     """
 
     lo: int
@@ -48,6 +48,7 @@ class Edges:
     ok_in: np.ndarray
     ok_out: np.ndarray
     level: float
+    bubble: bool = False
 
 
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
@@ -277,6 +278,7 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     # an air bubble at or ahead of the tip: each frame's window from `back` before its dark end,
     # its bright pixels (coverage, blurred * scale + shift, up to cfg.bubble_bright) clear of the walls
     windows = []
+    bubble = np.zeros(len(surveys), dtype=bool)
     half_median: dict[tuple[int, int], float] = {}  # frames with the same window share its median
     for b in np.flatnonzero(last_dark >= 0).tolist():
         end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
@@ -296,6 +298,7 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
                                seed[cols], inside_b, end - a, step, du * half_b, 2.0 * plan.r_tip_mm, cfg)
         if stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
+            bubble[b] = True
     # the stations that hold the array
     arr = Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
     take = strip.start[arr.row] + arr.local
@@ -337,5 +340,6 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), extent.tolist(), arr.start.tolist(), arr.n.tolist())):
         a = slice(s, s + m)
         out.append(Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
-                          v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b]))))
+                          v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b])),
+                          bool(bubble[b])))
     return out

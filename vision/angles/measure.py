@@ -70,8 +70,9 @@ def measure_frame(
         Never raises on a bad frame: one that cannot be measured gives ``ok=False`` with a
         ``reason``: ``"array not in channel"`` (no array at the entry's outer end: not
         inserted yet, absent, hidden, or too faint), ``"tip out of view"``, ``"entry out of
-        view"``, ``"array edges not found"``, ``"bad frame: ..."`` or ``"measurement failed:
-        ..."``. ``extras['time_ms']`` is the time spent on the frame (ms), without the strip's
+        view"``, ``"array edges not found"``, bright bands going on past the dark run's end
+        (the array lighter past a shadow's edge, see ``MeasureConfig.resume_mm``), ``"bad
+        frame: ..."`` or ``"measurement failed: ..."``. ``extras['time_ms']`` is the time spent on the frame (ms), without the strip's
         preparation when a plan is passed; ``timings`` splits it by stage (s).
 
     Raises
@@ -159,6 +160,10 @@ def measure_frames_batch(
 
 _ERRORS = (ValueError, IndexError, FloatingPointError, cv2.error)
 
+# Why a frame whose dark run is followed by a train of bright stretches (metal bands, with the
+# array's body too light to count as dark) is not measured (:attr:`Survey.resumes`).
+_RESUMES = "bright bands go on past the dark run's end (the array out of a shadow?)"
+
 
 def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasurement]:
     """The four stages on grey frames of the plan's shape, all frames at once.
@@ -177,6 +182,9 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             edges = edges_batch([imgs[k] for k in found], plan, [surveys[k] for k in found]) if found else []
             t2 = time.perf_counter()
             lines = centre_line_batch(plan, edges) if found else []
+            for j, k in enumerate(found):  # bright stretches past the tip that no bubble explains
+                if surveys[k].resumes and not edges[j].bubble:
+                    lines[j] = _RESUMES
             t3 = time.perf_counter()
             measured = [j for j, c in enumerate(lines) if isinstance(c, CentreLine)]
             finals = results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j], plan.step_mm))

@@ -25,7 +25,8 @@ class Survey:
 
     ``fluid_c`` fluid level (grey levels), ``rho`` array / fluid, ``contrast`` fluid − array
     at the entry (grey levels), ``seed_c`` darkest offset (coarse index), ``tip_est`` the
-    dark run's last station (fine index).
+    dark run's last station (fine index), ``resumes`` whether a train of bright stretches
+    goes on past it (:func:`_run_resumes`).
     """
 
     fluid_c: np.ndarray
@@ -33,6 +34,7 @@ class Survey:
     contrast: float
     seed_c: np.ndarray
     tip_est: int
+    resumes: bool = False
 
 
 def _band_border_c(cfg: MeasureConfig, step_mm: float) -> int:
@@ -210,6 +212,32 @@ def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.nd
     return np.where(start < n, end, -1)
 
 
+def _run_resumes(dark: np.ndarray, band: np.ndarray, end: np.ndarray, max_gap: float, reach: int,
+                 length: int) -> np.ndarray:
+    """Per row (frame) of ``dark`` and ``band`` (shape (B, n)), whether another run of dark or
+    band stations, bridging gaps up to ``max_gap`` stations, starts within ``reach`` stations
+    past ``end`` (the dark run's last station; −1: none), goes on for ``length`` stations or
+    more and holds two or more separate band stretches: a train of bright stretches longer
+    than a bubble, the array going on where its body is too light to count as dark (the run
+    ended at a shadow's edge), or a chain of bubbles ahead of the tip. Shading across the
+    fluid makes no bands."""
+    carry = dark | band
+    starts_b = band.copy()
+    starts_b[:, 1:] &= ~band[:, :-1]
+    out = np.zeros(len(end), dtype=bool)
+    for b in np.flatnonzero(end >= 0).tolist():
+        e = int(end[b]) + 1
+        at = np.flatnonzero(carry[b, e:])  # stations past the end
+        if not len(at):
+            continue
+        breaks = np.flatnonzero(np.diff(at) - 1 > max_gap)
+        first, last = at[np.r_[0, breaks + 1]], at[np.r_[breaks, len(at) - 1]]
+        count = np.concatenate([[0], np.cumsum(starts_b[b, e:])])
+        bands = count[last + 1] - count[first]
+        out[b] = bool(np.any((first < reach) & (last - first >= length) & (bands >= 2)))
+    return out
+
+
 def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | FrameMeasurement]:
     """Stage 1 of each frame of ``imgs`` (grey, the plan's shape), computed together.
 
@@ -254,7 +282,13 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     rho = rho1[:, None]
     contrast_c = fluid_c * (1.0 - rho)
     body = (fluid_c - darkest) / contrast_c >= cfg.body_level
+    # the fluid shows beside the array's body, or the channel is plain; a station brighter by a
+    # metal band's margin than the first estimate anywhere within reach shows a band or a glint,
+    # not the fluid (the first estimate runs low where the array fills the channel)
     trusted = view_c & (erode(body, _band_border_c(cfg, step)) | ((brightest - darkest) / contrast_c < 0.3))
+    near = cv2.dilate(fluid_c.astype(np.float32), np.ones((1, 2 * reach * block + 1), np.uint8),
+                      borderType=cv2.BORDER_REPLICATE)
+    trusted &= brightest < (1.0 + cfg.band_level) * near
     fluid_c = _fluid_levels(brightest, trusted, block, 75.0, reach, cfg.fluid_floor)
     rho2 = _array_ratio_low(darkest, brightest, steepest, fluid_c, view_c, entry_c, min_beside)
     contrast = np.sort(fluid_c[:, probe], axis=1)[:, int(round(0.5 * (len(probe) - 1)))] * (1.0 - rho2)
@@ -264,7 +298,10 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     lit = ((coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]).sum(axis=1)
     across_mm = sa * float(plan.u[1] - plan.u[0]) * plan.half_mm[::sa]  # the coarse offsets' spacing
     band = (lit > 0) & (lit * across_mm <= cfg.band_width_mm) & view_c
-    tips_c = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step), band, _band_border_c(cfg, step)).tolist()
+    runs = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step), band, _band_border_c(cfg, step))
+    resumes = _run_resumes(dark, band, runs, cfg.max_gap_mm / (sa * step), int(np.ceil(cfg.resume_mm / (sa * step))),
+                           int(np.ceil(cfg.resume_length_mm / (sa * step)))).tolist()
+    tips_c = runs.tolist()
     out: list[Survey | FrameMeasurement] = []
     for b in range(n_rows):
         if not rho1[b] == rho1[b] or not rho2[b] == rho2[b]:
@@ -280,5 +317,5 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
         elif not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
             out.append(failure("tip out of view", contrast=c))
         else:
-            out.append(Survey(fluid_c[b], float(rho2[b]), c, seed_c[b], sa * tip_c))
+            out.append(Survey(fluid_c[b], float(rho2[b]), c, seed_c[b], sa * tip_c, bool(resumes[b])))
     return out
