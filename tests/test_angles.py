@@ -903,3 +903,37 @@ def test_long_bright_bands_do_not_end_the_array() -> None:
             right_before += before.ok and abs(before.theta_tip - state.truth.theta_tip) <= 0.05
     assert right >= 11 and short == 0, (right, short)
     assert right_before == 0, right_before  # the scenario is the failure the bands fix
+
+
+# --------------------------------------------------------------------------- the registration's residual
+
+
+def test_a_registration_that_fits_loosely_widens_the_gaps_resolution() -> None:
+    """An array on the outer wall for 2.7 rad at 15-18 px/mm, measured with the pose 3.5 px off
+    in eight directions at six poses (48 frames; most are refused either way). With the gaps told
+    apart to 2 px, two frames miss the contact entirely (theta_con 0, 2.69 rad short); with a
+    registration whose walls fit to 1.5 px RMS the resolution is 3 px, those two are refused
+    ("contact start unclear") and none measured is off by more than 0.51 rad (measured: 0.500)."""
+    from tympani.vision.angles.plan import gap_resolution
+
+    cfg = MeasureConfig()
+    assert [gap_resolution(r, cfg) for r in (None, float("nan"), 0.4, 1.2, 1.5, 5.0)] == [2.0, 2.0, 2.0, 2.4, 3.0, 3.0]
+    rng = np.random.default_rng(5)
+    worst = {0.0: [], 1.5: []}
+    unclear = 0
+    for k in range(6):
+        pose = random_pose(rng, W, H, px_per_mm=(15.0, 18.0))
+        state = pose_at_depth(16.0, ContactPolicy(theta_first=0.8))
+        frame = _gray(Scene(pose, W, H, Appearance(), Nuisance(noise_sigma=3.0), rng=np.random.default_rng(k)).render(state))
+        for angle in np.radians(np.arange(0.0, 360.0, 45.0)):
+            moved = pose.moved((3.5 * np.cos(angle), 3.5 * np.sin(angle)))
+            for residual in (0.0, 1.5):
+                m = measure_frame(frame, prepare_measurement(SimpleNamespace(pose=moved, residual_px=residual),
+                                                             frame.shape))
+                if m.ok:
+                    worst[residual].append(abs(m.theta_con - state.truth.theta_con))
+                elif residual and m.reason.startswith("contact start unclear"):
+                    unclear += 1
+    assert sum(e > 2.0 for e in worst[0.0]) == 2
+    assert max(worst[1.5]) <= 0.51 and len(worst[1.5]) == len(worst[0.0]) - 2
+    assert unclear >= 2

@@ -45,6 +45,11 @@ class MeasureConfig:
         is one of these.
     contact_swing_rad : float
         See ``gap_resolution_px``.
+    residual_resolution, max_gap_resolution_px : float
+        The gaps are told apart no more finely than the registration fits the walls: the
+        resolution is raised to ``residual_resolution`` times the registration's residual (px),
+        at most ``max_gap_resolution_px`` (px; larger residuals, on independent renders, came
+        with good poses as often as with bad ones).
     station_step_px : float
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float
@@ -207,6 +212,8 @@ class MeasureConfig:
     contact_bias_mm: float = 0.1
     gap_resolution_px: float = 2.0
     contact_swing_rad: float = 0.6
+    residual_resolution: float = 2.0
+    max_gap_resolution_px: float = 3.0
     station_step_px: float = 1.0
     offset_step_px: float = 1.0
     min_step_mm: float = 0.03

@@ -8,6 +8,7 @@ scale (:attr:`MeasurePlan.refusal`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
@@ -86,6 +87,9 @@ class MeasurePlan:
     copy_shift_mm : tuple of float
         Where walls show twice, the phantom-frame vector (mm) from the registered walls to their
         other copy (the registration's ``parallax_px``); ``(0, 0)`` for single walls.
+    gap_resolution_px : float
+        How finely (px) the gap to the wall is told apart with this registration
+        (:func:`gap_resolution`).
     """
 
     pose: CameraPose
@@ -112,6 +116,7 @@ class MeasurePlan:
     r_tip_mm: float
     refusal: str | None = None
     copy_shift_mm: tuple[float, float] = (0.0, 0.0)
+    gap_resolution_px: float = 2.0
 
     @property
     def step_mm(self) -> float:
@@ -275,7 +280,18 @@ def prepare_measurement(
         in_view=np.all(inside | ~interior, axis=0),
         angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)),
         refusal=_scale_refusal(ppm, array, cfg), copy_shift_mm=_copy_shift_mm(registration, pose),
+        gap_resolution_px=gap_resolution(getattr(registration, "residual_px", None), cfg),
     )
+
+
+def gap_resolution(residual_px: float | None, cfg: MeasureConfig) -> float:
+    """How finely (px) the gap to the wall is told apart with a registration whose walls fit
+    with ``residual_px`` (px RMS; None or NaN: unknown): ``cfg.gap_resolution_px``, raised to
+    ``cfg.residual_resolution`` times the residual, at most ``cfg.max_gap_resolution_px``."""
+    if residual_px is None or not math.isfinite(float(residual_px)):
+        return float(cfg.gap_resolution_px)
+    raised = min(cfg.residual_resolution * float(residual_px), cfg.max_gap_resolution_px)
+    return float(max(cfg.gap_resolution_px, raised))
 
 
 def _copy_shift_mm(registration: HasPose | CameraPose, pose: CameraPose) -> tuple[float, float]:

@@ -104,7 +104,7 @@ def other_copy_support(gaps: np.ndarray, station: np.ndarray, cl: Ragged, plan: 
     The array presses on the outer wall in a run that ends at its tip, and it cannot cross the
     wall. On the other copy each gap grows by the copies' shift along the point's outward
     normal. Where the tip touches one copy's wall and not the other's (gap within
-    ``contact_tol_mm`` plus ``gap_resolution_px``, :func:`contact_run`), the points of its
+    ``contact_tol_mm`` plus the plan's ``gap_resolution_px``, :func:`contact_run`), the points of its
     contact run count 1 for that copy (only points where the shift exceeds 1.5 times the
     tolerance: nearer, the copies' walls are not told apart); where the tip touches both, a run
     longer on one copy says little (where the array leaves the wall its gap grows gradually).
@@ -135,7 +135,7 @@ def other_copy_support(gaps: np.ndarray, station: np.ndarray, cl: Ragged, plan: 
     if not shift.any():
         return np.full(len(cl.n), np.nan)
     cfg = plan.cfg
-    tol = cfg.contact_tol_mm + cfg.gap_resolution_px / float(plan.pose.px_per_mm)
+    tol = cfg.contact_tol_mm + plan.gap_resolution_px / float(plan.pose.px_per_mm)
     along = plan.normal[station] @ shift
     told = np.abs(along) >= 1.5 * tol  # the copies' walls apart by more than the gaps' resolution
 
@@ -198,7 +198,7 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # the contact run with the tolerance raised by the gaps' resolution: where it starts much
     # further back, the array runs along the wall at about the tolerance and where (or whether)
     # it touches cannot be told at this resolution
-    c2, j0, j1, f2 = contact_run(gaps, tol + cfg.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
+    c2, j0, j1, f2 = contact_run(gaps, tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
     swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
     bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
     seg = np.diff(points, axis=0)
@@ -232,7 +232,7 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
                                    **extras))
             continue
         if swing_b > cfg.contact_swing_rad:
-            results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {cfg.gap_resolution_px:g} "
+            results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {plan.gap_resolution_px:.2g} "
                                    "px narrower", **extras))
             continue
         results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
