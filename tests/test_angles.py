@@ -917,7 +917,9 @@ def test_a_registration_that_fits_loosely_widens_the_gaps_resolution() -> None:
     from tympani.vision.angles.plan import gap_resolution
 
     cfg = MeasureConfig()
-    assert [gap_resolution(r, cfg) for r in (None, float("nan"), 0.4, 1.2, 1.5, 5.0)] == [2.0, 2.0, 2.0, 2.4, 3.0, 3.0]
+    assert [gap_resolution(r, False, cfg) for r in (None, float("nan"), 0.4, 1.2, 1.5, 5.0)] == [
+        2.0, 2.0, 2.0, 2.4, 3.0, 3.0]
+    assert [gap_resolution(r, True, cfg) for r in (None, 0.4, 5.0)] == [3.0, 3.0, 3.0]
     rng = np.random.default_rng(5)
     worst = {0.0: [], 1.5: []}
     unclear = 0

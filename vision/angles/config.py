@@ -49,7 +49,9 @@ class MeasureConfig:
         The gaps are told apart no more finely than the registration fits the walls: the
         resolution is raised to ``residual_resolution`` times the registration's residual (px),
         at most ``max_gap_resolution_px`` (px; larger residuals, on independent renders, came
-        with good poses as often as with bad ones).
+        with good poses as often as with bad ones). Where the walls show twice it is
+        ``max_gap_resolution_px``: which copy the array touches, or where between two copies
+        that merge the wall lies, is uncertain by up to their parallax.
     station_step_px : float
         Spacing (px) of the strip's stations along the channel's backbone.
     offset_step_px : float

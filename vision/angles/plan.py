@@ -280,18 +280,22 @@ def prepare_measurement(
         in_view=np.all(inside | ~interior, axis=0),
         angles=table, station_theta=spiral_angle(pts, table), r_tip_mm=float(array.radius(0.0)),
         refusal=_scale_refusal(ppm, array, cfg), copy_shift_mm=_copy_shift_mm(registration, pose),
-        gap_resolution_px=gap_resolution(getattr(registration, "residual_px", None), cfg),
+        gap_resolution_px=gap_resolution(getattr(registration, "residual_px", None),
+                                         bool(getattr(registration, "walls_doubled", False)), cfg),
     )
 
 
-def gap_resolution(residual_px: float | None, cfg: MeasureConfig) -> float:
+def gap_resolution(residual_px: float | None, walls_doubled: bool, cfg: MeasureConfig) -> float:
     """How finely (px) the gap to the wall is told apart with a registration whose walls fit
     with ``residual_px`` (px RMS; None or NaN: unknown): ``cfg.gap_resolution_px``, raised to
-    ``cfg.residual_resolution`` times the residual, at most ``cfg.max_gap_resolution_px``."""
-    if residual_px is None or not math.isfinite(float(residual_px)):
-        return float(cfg.gap_resolution_px)
-    raised = min(cfg.residual_resolution * float(residual_px), cfg.max_gap_resolution_px)
-    return float(max(cfg.gap_resolution_px, raised))
+    ``cfg.residual_resolution`` times the residual, at most ``cfg.max_gap_resolution_px``; that
+    much where the walls show twice (``walls_doubled``)."""
+    resolution = float(cfg.gap_resolution_px)
+    if residual_px is not None and math.isfinite(float(residual_px)):
+        resolution = max(resolution, min(cfg.residual_resolution * float(residual_px), cfg.max_gap_resolution_px))
+    if walls_doubled:
+        resolution = max(resolution, float(cfg.max_gap_resolution_px))
+    return resolution
 
 
 def _copy_shift_mm(registration: HasPose | CameraPose, pose: CameraPose) -> tuple[float, float]:
