@@ -397,6 +397,7 @@ def test_camera_bumped_mid_way_is_re_registered(tmp_path, capsys):
                                             "registration")
     regs = json.loads((out / "bumped.registration.json").read_text())["registrations"]
     assert [r["frame"] for r in regs] == [0, 15] and regs[1]["trigger"] == "check"
+    assert [r["gap_resolution_px"] for r in regs] == [2.0, 2.0]  # single walls fitted well
     assert regs[1]["moved_at_frame"] == bump
     assert regs[1]["check_residual_px"] > regs[1]["threshold_px"]
     assert abs(regs[1]["centre_x_px"] - after.centre_x_px) < 0.04 and abs(regs[1]["centre_y_px"] - after.centre_y_px) < 0.04

@@ -79,13 +79,16 @@ class Epoch:
     def record(self) -> dict:
         """Its entry of the registration record (docs/file-formats.md): ``frame``, ``epoch``,
         ``trigger`` ("start" or "check"; for "check" also ``check_residual_px`` and
-        ``threshold_px``), ``n_frames_used`` and the registration's ``to_dict()`` keys."""
+        ``threshold_px``), ``n_frames_used``, the registration's ``to_dict()`` keys and, where
+        the plan has one, ``gap_resolution_px`` (how finely its frames' gaps to the wall were
+        told apart, px)."""
         trigger: dict[str, Any] = {"trigger": "start"}
         if self.trigger is not None:
             trigger = {"trigger": "check", "check_residual_px": self.trigger.residual_px,
                        "threshold_px": self.trigger.threshold_px}
+        resolution = getattr(self.plan, "gap_resolution_px", None)
         return {"frame": self.frame, "epoch": self.index, **trigger, "n_frames_used": self.n_frames_used,
-                **self.registration.to_dict()}
+                **self.registration.to_dict(), **({} if resolution is None else {"gap_resolution_px": resolution})}
 
 
 @dataclass(frozen=True)
