@@ -12,13 +12,13 @@ import numpy as np
 
 from tympani.vision.frames import Frame
 
-__all__ = ["Check", "Epoch", "LostSpan", "ExtractLog", "MeasuredFrame"]
-
+__all__ = ["Check", "Epoch", "LostSpan", "ExtractLog", "MeasuredFrame", "mark_not_ok"]
 
 
 def mark_not_ok(row: dict, reason: str) -> None:
     """Mark an angles-table row not ok (in place): ``ok`` False, NaN angles, ``reason``."""
     row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan, reason=reason)
+
 
 @dataclass(frozen=True)
 class Check:

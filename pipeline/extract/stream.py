@@ -178,10 +178,15 @@ def try_measure(steps: VisionSteps, gray: np.ndarray, plan: Any, cfg: ExtractCon
         return exc
 
 
+def raised_row(exc: Exception) -> dict:
+    """The result row of a frame whose measurement raised ``exc``."""
+    return {"ok": False, "reason": f"measurement raised {one_line(exc)}"}
+
+
 def measured_row(steps: VisionSteps, gray: np.ndarray, plan: Any, cfg: ExtractConfig) -> dict:
-    """``to_row()`` of :func:`try_measure`, or the failure row of the exception it raised."""
+    """``to_row()`` of :func:`try_measure`, or :func:`raised_row` of the exception it raised."""
     m = try_measure(steps, gray, plan, cfg)
-    return {"ok": False, "reason": f"measurement raised {one_line(m)}"} if isinstance(m, Exception) else m.to_row()
+    return raised_row(m) if isinstance(m, Exception) else m.to_row()
 
 
 def prepare_plan(steps: VisionSteps, registration: Any, shape: tuple[int, ...], cfg: ExtractConfig) -> Any:
@@ -452,9 +457,9 @@ class FrameMachine:
         ``result`` is ``m.to_row()`` when already computed."""
         log = self.log
         if isinstance(m, Exception):  # a failed frame keeps its row
-            result = {"ok": False, "reason": f"measurement raised {one_line(m)}"}
+            result = raised_row(m)
             if log.n_exceptions == 0:
-                log.warnings.append(f"frame {d.index}: measurement raised {one_line(m)}")
+                log.warnings.append(f"frame {d.index}: {result['reason']}")
             log.n_exceptions += 1
             m = None
         elif result is None:
