@@ -677,6 +677,44 @@ def test_a_bubble_at_or_ahead_of_the_tip_is_not_array(gap_mm: float) -> None:
     assert max(bot_err) <= 0.2, bot_err
 
 
+def _bubble_touching_the_tip(line_rows: slice | None) -> tuple[np.ndarray, int, float, float]:
+    """Coverage (0 fluid, 1 array; offsets x stations, 0.026 x 0.034 mm) of an array 0.6 mm
+    wide running into the rim (0.08 mm) of a bubble (bright interior 0.72 mm across) that
+    begins at station 120, with a dark line along ``line_rows`` from the bubble's far side to
+    the window's end. Returns the coverage, the rim's first station and the two spacings (mm)."""
+    step, offset, tip = 0.034, 0.026, 120
+    cover = np.zeros((51, 200))
+    cover[19:42, : tip + 2] = 1.0  # the array, rows 19-41 around its track at 30, into the rim
+    sx, sy = np.meshgrid(np.arange(200) * step, np.arange(51) * offset)
+    r = np.hypot(sx - (tip * step + 0.44), sy - 30 * offset)
+    cover[(r >= 0.36) & (r <= 0.44)] = 1.0
+    cover[r < 0.36] = -0.2
+    if line_rows is not None:
+        cover[line_rows, tip + 26 :] = 1.0
+    return cover, tip, step, offset
+
+
+@pytest.mark.parametrize("line_rows", [None, slice(29, 32), slice(26, 35)])
+def test_a_bubble_against_the_tip_takes_off_no_more_than_its_rim(line_rows: slice | None) -> None:
+    """An air bubble touching the tip, with more dark beyond it on the array's path (a wall's
+    other copy, a shadow): the array ends within a rim's thickness (0.2 mm) of where the rim
+    begins, whatever lies beyond. Measured: 0.03 mm past it without the line, 0.1 mm before it
+    with; taking off as much as the dark beyond the interior is long (rim and line) ended the
+    array 1.8 mm short."""
+    from tympani.vision.angles.bubbles import bubble_end
+
+    cfg = MeasureConfig()
+    cover, tip, step, offset = _bubble_touching_the_tip(line_rows)
+    dark = cover.max(axis=0) >= cfg.dark_level
+    seed = np.full(cover.shape[1], 30)  # the darkest offset: the array's track
+    inside = np.zeros(51, dtype=bool)
+    inside[3:48] = True
+    end, stop = bubble_end(cover, dark, seed, inside, int(np.flatnonzero(dark)[-1]), step, offset, 0.6, cfg)
+    rim = int(np.ceil(cfg.bubble_rim_mm / step))
+    assert stop is not None and tip - rim <= stop <= tip + 2, (end, stop)
+    assert tip - 1 - rim <= end <= tip + 1, (end, stop)
+
+
 def test_a_tip_read_across_a_wall_into_the_next_turn_is_refused():
     """A dark hook (a shadow, a bubble's rim) from the tip across the thin wall between two turns
     into the next turn inwards, at eight random poses and looks (18-30 px/mm, depths 11-14 mm):

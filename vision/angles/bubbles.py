@@ -205,8 +205,9 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         if near * step_mm <= cfg.bubble_rim_mm and x[k] - near > 0:  # fluid before the rim: the array ends there
             stop = int(x[k]) - near
             last = np.flatnonzero(path[:stop] & dark[:stop])
-        else:  # the rim touches the array: take as much off as the rim beyond the interior is thick
-            stop = max(int(x[k]) - far, 0)
+        else:  # the rim touches the array: take as much off as the rim beyond the interior is
+            # thick (no more than a rim: beyond it may lie more dark, a line along a wall)
+            stop = max(int(x[k]) - min(far, int(np.ceil(cfg.bubble_rim_mm / step_mm))), 0)
             last = np.flatnonzero(dark[:stop])
         return (min(int(last[-1]), end) if len(last) else -1), stop
     return end, None
