@@ -90,6 +90,39 @@ def contact_run(gaps: np.ndarray, tol: np.ndarray | float, cl: Ragged, cfg: Meas
     return touching[cl.start], i0, i1, frac
 
 
+def unseen_span(theta: np.ndarray, measured: np.ndarray, away: np.ndarray, i0: np.ndarray, i1: np.ndarray,
+                cl: Ragged) -> np.ndarray:
+    """Per frame, the angle (rad) from the last centre-line point with measured edges at or
+    before its contact run's end (point ``i0``) to the first one from ``i1`` on that, with the
+    next point, has measured edges and a gap showing the array off the wall (``away``): how
+    far the contact start may lie from where the smoothed gaps put it. The line's basal end
+    bounds a frame with no such point.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Angle (rad) of each centre-line point, the frames' points laid end to end (``cl``), tip
+        first.
+    measured : ndarray of bool
+        Whether each point's edges were measured.
+    away : ndarray of bool
+        Whether each point's gap exceeds the contact tolerance.
+    i0, i1 : ndarray of int
+        Per frame, the positions of the contact run's last point and of the next one.
+    cl : Ragged
+        The frames' points.
+    """
+    pos = np.arange(len(theta))
+    last = np.maximum.accumulate(np.where(measured, pos, -1))  # at or before each point
+    off = measured & away
+    off[:-1] &= off[1:]  # and the next point too: a lone station's edges may be noise
+    nxt = np.minimum.accumulate(np.where(off, pos, len(pos))[::-1])[::-1]  # at or after it
+    end = cl.start + cl.n - 1
+    a = np.maximum(last[i0], cl.start)
+    b = np.minimum(nxt[i1], end)
+    return np.abs(theta[a] - theta[b])
+
+
 # Frames whose tip is short of this angle (rad) say nothing of which copy of doubled walls the
 # array touches (:func:`other_copy_support`).
 _COPY_TIP_RAD = math.pi
@@ -170,7 +203,8 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     tip_f = np.array([c.tip_f for _, c, _ in staged])
     tip_mm = np.array([c.tip_mm for _, c, _ in staged])
     n = np.array([e.n for e, _, _ in staged], dtype=np.intp)
-    line, gap, radius = (np.concatenate([getattr(c, name) for _, c, _ in staged]) for name in ("line", "gap", "radius"))
+    line, gap, radius, seen = (np.concatenate([getattr(c, name) for _, c, _ in staged])
+                               for name in ("line", "gap", "radius", "measured"))
     # the kept stations: every k-th from the last one at or before the tip
     top = np.minimum(np.floor(tip_f).astype(np.intp), n - 1)
     kept = Ragged.of(top // k + 1)
@@ -200,6 +234,10 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # it touches cannot be told at this resolution
     c2, j0, j1, f2 = contact_run(gaps, tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
     swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
+    # where no edges were seen around the contact start, its gaps are only smoothed across
+    measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
+    measured[inner] = seen[at]
+    blind = unseen_span(theta, measured, gaps > tol, i0, i1, cl)
     bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
     seg = np.diff(points, axis=0)
     seg = np.hypot(seg[:, 0], seg[:, 1])
@@ -221,14 +259,18 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     results = []
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
                bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist(),
-               other_copy.tolist())
-    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b, other_b \
-            in rows:
+               other_copy.tolist(), contact.tolist(), blind.tolist())
+    for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b, other_b, \
+            contact_b, blind_b in rows:
         extras["depth_mm"] = depth_b
         extras["other_copy_mm"] = other_b
         if crossed_b:
             # kept within the 72 characters an annotated frame shows of a reason
             results.append(failure(f"centre line across a wall into the next turn (tip read at {t_tip:.2f} rad)",
+                                   **extras))
+            continue
+        if contact_b and not in_entry and blind_b > cfg.contact_swing_rad:
+            results.append(failure(f"contact start unclear: no array edges over the {blind_b:.2f} rad it lies in",
                                    **extras))
             continue
         if swing_b > cfg.contact_swing_rad:
