@@ -186,6 +186,28 @@ def test_scale_floor_refuses_every_frame_below_it() -> None:
             assert (m.reason or "").startswith("array too small in the image") == refused
 
 
+@pytest.mark.parametrize("darker", [10.0, 14.0, 17.0])
+def test_an_array_faintly_darker_than_dim_fluid(darker: float) -> None:
+    """Dim fluid (100 grey levels, noise 4) and an array 10, 14 or 17 levels darker, at six poses
+    (18-30 px/mm): 14 and 17 are measured in every frame (their contrast estimated at 13-20
+    levels; at least 18 were asked before, and most were refused), tip within 0.015 rad and
+    theta_bot within 0.05 rad (measured at most 0.011 and 0.042); 10 levels (0.9 of the fluid)
+    are taken for no array in every frame."""
+    rng = np.random.default_rng(41)
+    for k in range(6):
+        pose = random_pose(rng, W, H, px_per_mm=(18.0, 30.0))
+        state = pose_at_depth(10.0 + k, ContactPolicy(theta_first=1.2))
+        look = Appearance(background=90.0, fluid=100.0, array_level=100.0 - darker, band_level=140.0)
+        frame = _gray(Scene(pose, W, H, look, Nuisance(noise_sigma=4.0), rng=np.random.default_rng(k)).render(state))
+        m = measure_frame(frame, prepare_measurement(_reg(pose), frame.shape))
+        if darker < 12.0:
+            assert not m.ok and m.reason == "array not in channel", (k, m.reason)
+            continue
+        assert m.ok, (k, m.reason)
+        assert abs(m.theta_tip - state.truth.theta_tip) <= 0.015, (k, m.theta_tip, state.truth.theta_tip)
+        assert abs(m.theta_bot - state.truth.theta_bot) <= 0.05, (k, m.theta_bot, state.truth.theta_bot)
+
+
 def test_high_magnification_ensemble() -> None:
     """Zoomed-in cameras: 36 random 1280x960 frames at 36-68 px/mm (seed 7), every one measured,
     and the batch equal to the per-frame measurement. A band's border spans a length in mm

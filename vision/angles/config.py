@@ -251,7 +251,7 @@ class MeasureConfig:
     band_width_mm: float = 1.5
     resume_mm: float = 2.0
     resume_length_mm: float = 2.0
-    min_contrast: float = 18.0
+    min_contrast: float = 12.0
     gap_smooth_mm: float = 0.4
     outlier_px: float = 1.5
     plateau_px: tuple[float, float] = (2.5, 4.0)
