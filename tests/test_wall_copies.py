@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
@@ -103,3 +104,23 @@ def test_the_copy_is_switched_only_on_enough_evidence() -> None:
     assert prefers_other_copy(np.array([0.0, 0.0, 2.0, 2.0, 2.0, -0.4]))  # -0.4: for neither
     assert not prefers_other_copy(np.array([0.0, 0.0, 0.6, 0.6, 0.6, 0.6]))  # 2.4 mm in all
     assert not prefers_other_copy(np.full(6, np.nan))
+
+
+def test_annotate_draws_the_copy_that_extraction_switches_to(tmp_path: Path) -> None:
+    """Seed 11 registered on the wrong copy: ``annotate`` measures the whole video for the
+    evidence, as ``extract`` does, and draws (and tabulates) its frames on the copy extraction
+    switches to, with the same angles (on the last three frames extraction measured; drawn with
+    the first registration, two of them were refused); it says so among its warnings."""
+    from tympani.pipeline.extract.annotate import annotate_video
+
+    path, pose, shift, truth = _video(tmp_path, 11)
+    steps = _steps(_right(pose, shift).other_copy())
+    table, _ = extract_video(path, ExtractConfig(), steps=steps)
+    frames = table.loc[table["ok"], "frame"].to_list()[-3:]
+    result = annotate_video(path, tmp_path / "annotated", ExtractConfig(), frames=frames, steps=steps)
+    assert any("drawn again on their other copy" in w for w in result.warnings), result.warnings
+    drawn = pd.read_csv(result.table).set_index("frame").loc[frames]
+    angles = ["theta_tip", "theta_bot", "theta_con"]
+    assert drawn["ok"].all()
+    np.testing.assert_allclose(drawn[angles].to_numpy(float), table.set_index("frame").loc[frames][angles].to_numpy(float),
+                               atol=1e-9)

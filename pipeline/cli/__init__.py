@@ -590,7 +590,9 @@ COMMANDS: dict[str, Command] = {
         _run_annotate,
         "Draw the registered phantom and the measurement on chosen frames (PNG, optionally mp4), and compare "
         "manual labels (--label / --labels, pixels) with the automatic angles. Each frame shows its own "
-        "measurement: the checks 'extract' runs over a whole video (glitches, kinematics) are not applied.",
+        "measurement: the checks 'extract' runs over a whole video (glitches, kinematics) are not applied; where "
+        "the walls show twice, the whole video is read first and the frames are drawn on the copy extract "
+        "measures them on.",
     ),
     "bench": Command(
         "throughput, per-stage time and memory figures",

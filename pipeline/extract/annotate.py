@@ -17,10 +17,11 @@ are converted to phantom angles (rad, as in the angles table) with the frame's r
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import secrets
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -29,8 +30,9 @@ import numpy as np
 import pandas as pd
 
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
-from tympani.pipeline.extract.stream import ExtractLog, measure_frames
-from tympani.pipeline.extract.video import trial_name
+from tympani.pipeline.extract.stream import (ExtractLog, frame_row, measure_frames, prepare_plan, raised_row,
+                                             try_measure)
+from tympani.pipeline.extract.video import copies_to_switch, motion_checks, trial_name
 from tympani.pipeline.force.forcelog import read_csv_columns
 from tympani.pipeline.io import atomic_write_bytes, atomic_write_csv
 from tympani.vision.drawing import annotate_frame
@@ -305,57 +307,84 @@ def annotate_video(
     label_rows = {int(r["frame"]): r for _, r in label_table.iterrows()} if label_table is not None else {}
     last_needed = None if (mp4 or stride is not None) else max(wanted | set(label_rows), default=0)
 
-    images: list[Path] = []
-    drawn_rows: list[dict] = []
-    all_rows: list[dict] = []
-    label_out: list[dict] = []
-    log = ExtractLog()
-    writer, tmp_video = None, None
-    final_video = out / f"{name}.annotated.mp4"
-    try:
-        for mf in measure_frames(source, cfg, trial=name, log=log, progress=progress, steps=steps):
-            idx = mf.frame.index
-            draw = idx in wanted or (stride is not None and idx % stride == 0) or idx in label_rows
-            labels_px = None
-            if idx in label_rows:
-                lab = label_rows[idx]
-                labels_px = {k: (lab[f"{k}_x_px"], lab[f"{k}_y_px"]) for k in ("tip", "bot")}
-                label_out.append({**{c: lab[c] for c in LABEL_COLUMNS}, **label_angles(lab, mf.registration, cfg.phantom)})
-            if label_rows:
-                all_rows.append(mf.row)
-            if draw or mp4:
-                title = f"{name}  frame {idx}  {mf.frame.time_s:.3f} s"
-                image = annotate_frame(mf.frame.image, mf.registration, cfg.phantom, mf.measurement,
-                                       labels_px=labels_px, title=title)
-                if draw:
-                    ok, buf = cv2.imencode(".png", image)
-                    if not ok:  # pragma: no cover
-                        raise RuntimeError(f"PNG encoding failed for frame {idx}")
-                    images.append(atomic_write_bytes(out / f"{name}.frame{idx:06d}.png", buf.tobytes()))
-                    drawn_rows.append(mf.row)
-                if mp4:
-                    if writer is None:
-                        tmp_video = out / f".{name}.annotated.{secrets.token_hex(4)}.mp4"
-                        h, w = image.shape[:2]
-                        writer = cv2.VideoWriter(str(tmp_video), cv2.VideoWriter_fourcc(*"mp4v"), float(source.fps), (w, h))
-                        if not writer.isOpened():
-                            raise RuntimeError("OpenCV cannot write mp4 files here (no mp4v encoder)")
-                    writer.write(image)
-            if last_needed is not None and idx >= last_needed:
-                break
-        if writer is not None:
-            writer.release()
-            writer = None
-            assert tmp_video is not None  # set with the writer
-            os.replace(tmp_video, final_video)
-            tmp_video = None
-    finally:
-        if writer is not None:
-            writer.release()
-        if tmp_video is not None:
-            Path(tmp_video).unlink(missing_ok=True)
+    def draw_pass(overrides: dict[int, tuple[Any, Any]]) -> _Drawn:
+        """Measure and draw the video once; frames of an epoch in ``overrides`` are measured and
+        drawn with its (registration, plan) instead."""
+        drawn = _Drawn(log=ExtractLog())
+        writer, tmp_video = None, None
+        doubled = False
+        try:
+            for mf in measure_frames(source, cfg, trial=name, log=drawn.log, progress=progress, steps=steps):
+                idx = mf.frame.index
+                registration, measurement, row = mf.registration, mf.measurement, mf.row
+                if mf.epoch in overrides and "time_ms" in row:
+                    registration, plan = overrides[mf.epoch]
+                    m = try_measure(steps, mf.gray, plan, cfg)
+                    measurement = None if isinstance(m, Exception) else m
+                    row = frame_row(name, mf.frame, raised_row(m) if measurement is None else m.to_row(), mf.epoch)
+                doubled = doubled or bool(getattr(registration, "walls_doubled", False))
+                drawn.rows.append(row)
+                draw = idx in wanted or (stride is not None and idx % stride == 0) or idx in label_rows
+                labels_px = None
+                if idx in label_rows:
+                    lab = label_rows[idx]
+                    labels_px = {k: (lab[f"{k}_x_px"], lab[f"{k}_y_px"]) for k in ("tip", "bot")}
+                    drawn.labels.append({**{c: lab[c] for c in LABEL_COLUMNS},
+                                         **label_angles(lab, registration, cfg.phantom)})
+                if draw or mp4:
+                    title = f"{name}  frame {idx}  {mf.frame.time_s:.3f} s"
+                    image = annotate_frame(mf.frame.image, registration, cfg.phantom, measurement,
+                                           labels_px=labels_px, title=title)
+                    if draw:
+                        ok, buf = cv2.imencode(".png", image)
+                        if not ok:  # pragma: no cover
+                            raise RuntimeError(f"PNG encoding failed for frame {idx}")
+                        drawn.images.append(atomic_write_bytes(out / f"{name}.frame{idx:06d}.png", buf.tobytes()))
+                        drawn.drawn_rows.append(row)
+                    if mp4:
+                        if writer is None:
+                            tmp_video = out / f".{name}.annotated.{secrets.token_hex(4)}.mp4"
+                            h, w = image.shape[:2]
+                            writer = cv2.VideoWriter(str(tmp_video), cv2.VideoWriter_fourcc(*"mp4v"), float(source.fps),
+                                                     (w, h))
+                            if not writer.isOpened():
+                                raise RuntimeError("OpenCV cannot write mp4 files here (no mp4v encoder)")
+                        writer.write(image)
+                # where the walls show twice, every frame is the evidence of which copy the array touches
+                if last_needed is not None and idx >= last_needed and not doubled:
+                    break
+            if writer is not None:
+                writer.release()
+                writer = None
+                assert tmp_video is not None  # set with the writer
+                os.replace(tmp_video, final_video)
+                tmp_video = None
+        finally:
+            if writer is not None:
+                writer.release()
+            if tmp_video is not None:
+                Path(tmp_video).unlink(missing_ok=True)
+        return drawn
 
-    warnings = [*source.warnings, *log.warnings]
+    final_video = out / f"{name}.annotated.mp4"
+    drawn = draw_pass({})
+    log = drawn.log
+    switch = _copy_switches(drawn.rows, log, cfg)
+    notes = []
+    if switch:  # as extract does: the frames of those registrations measured (and drawn) again
+        overrides = {}
+        for k in switch:
+            epoch = log.epochs[k]
+            other = epoch.registration.other_copy()
+            overrides[epoch.index] = (other, prepare_plan(steps, other, epoch.plan.image_shape, cfg))
+        drawn = draw_pass(overrides)
+        log = drawn.log
+        notes.append(f"walls show twice: the frames of {len(switch)} registration(s) measured and drawn again on "
+                     "their other copy, which the array touches")
+    images, drawn_rows, label_out = drawn.images, drawn.drawn_rows, drawn.labels
+    all_rows = drawn.rows if label_rows else []
+
+    warnings = [*source.warnings, *log.warnings, *notes]
     seen = {r["frame"] for r in (all_rows or drawn_rows)}
     missing = sorted((wanted | set(label_rows)) - seen)
     if missing:
@@ -369,6 +398,28 @@ def annotate_video(
         atomic_write_csv(out / f"{name}.label_compare.csv", comparison)
     return AnnotateResult(name, tuple(images), final_video if mp4 else None, table_path, labels_path, comparison,
                           tuple(warnings))
+
+
+@dataclass
+class _Drawn:
+    """One pass of :func:`annotate_video` over a video: every frame's row, the drawn frames'
+    rows and images, the labels' angles, and the pass's log."""
+
+    log: ExtractLog
+    rows: list[dict] = field(default_factory=list)
+    drawn_rows: list[dict] = field(default_factory=list)
+    images: list[Path] = field(default_factory=list)
+    labels: list[dict] = field(default_factory=list)
+
+
+def _copy_switches(rows: list[dict], log: ExtractLog, cfg: ExtractConfig) -> list[int]:
+    """The registrations (positions in ``log.epochs``) that extraction measures again on the
+    doubled walls' other copy (:func:`~tympani.pipeline.extract.video.copies_to_switch`), with
+    the frames the motion checks mark left out of the evidence, as there."""
+    checked = copy.deepcopy(rows)
+    motion_checks(checked, cfg)
+    flagged = frozenset(a["frame"] for a, b in zip(rows, checked) if a["ok"] and not b["ok"])
+    return copies_to_switch(rows, log.epochs, flagged)
 
 
 def _rows_table(rows: list[dict]) -> pd.DataFrame:

@@ -18,7 +18,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
@@ -45,6 +45,7 @@ __all__ = [
     "moves_to_go_over",
     "remeasure_after_moves",
     "prefers_other_copy",
+    "copies_to_switch",
     "remeasure_on_other_copy",
     "flag_glitches",
     "flag_sparse",
@@ -380,6 +381,21 @@ def prefers_other_copy(support_mm: np.ndarray) -> bool:
     return bool(s.sum() >= OTHER_COPY_MM and for_other >= OTHER_COPY_FRAMES and for_other >= 3 * for_this)
 
 
+def copies_to_switch(rows: list[dict], epochs: Sequence[Epoch], flagged: frozenset[int] = frozenset()) -> list[int]:
+    """Positions in ``epochs`` of the registrations on doubled walls whose measured frames
+    (``rows``, but for those in ``flagged``) say the array touches the other copy
+    (:func:`prefers_other_copy`)."""
+    out = []
+    for k, epoch in enumerate(epochs):
+        if not getattr(epoch.registration, "walls_doubled", False) or not epoch.prepared:
+            continue
+        mine = [r for r in rows if r["reg_epoch"] == epoch.index]
+        support = np.array([r.get("other_copy_mm", math.nan) for r in mine if r["frame"] not in flagged], dtype=float)
+        if any("time_ms" in r for r in mine) and prefers_other_copy(support):
+            out.append(k)
+    return out
+
+
 def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractLog, cfg: ExtractConfig, trial: str,
                             *, steps: VisionSteps = VisionSteps(), flagged: frozenset[int] = frozenset()
                             ) -> list[str]:
@@ -401,17 +417,13 @@ def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractL
         A note for each registration switched.
     """
     notes = []
-    for k, epoch in enumerate(log.epochs):
-        registration = epoch.registration
-        if not getattr(registration, "walls_doubled", False) or not epoch.prepared:
-            continue
+    for k in copies_to_switch(rows, log.epochs, flagged):
+        epoch = log.epochs[k]
         support = np.array([r.get("other_copy_mm", math.nan) for r in rows
                             if r["reg_epoch"] == epoch.index and r["frame"] not in flagged], dtype=float)
         # the frames measured with it (frames of a lost span, never measured, stay as they are)
         at = {row["frame"]: i for i, row in enumerate(rows) if row["reg_epoch"] == epoch.index and "time_ms" in row}
-        if not at or not prefers_other_copy(support):
-            continue
-        other = registration.other_copy()
+        other = epoch.registration.other_copy()
         plan = prepare_plan(steps, other, epoch.plan.image_shape, cfg)
         log.epochs[k] = Epoch(epoch.index, epoch.frame, other, plan, epoch.n_frames_used, epoch.trigger)
         for frame in _frames_between(source, min(at) - 1, max(at) + 1):
