@@ -162,3 +162,15 @@ def test_a_contact_start_under_a_shadow_is_measured_only_where_it_is_seen(half_r
             assert abs(m.theta_bot - truth.theta_bot) <= 0.25, (k, m.theta_bot, truth.theta_bot)
         else:
             assert not m.ok and m.reason.startswith("contact start unclear: no array edges over the"), (k, m.reason)
+
+
+def test_edges_the_arrays_width_apart_place_it_though_not_used() -> None:
+    """A station places the array where its edges were used, or found the array's width apart
+    (within 30 %): a station without edges, or with edges a band's glare apart, does not."""
+    from tympani.vision.angles.results import shows_array
+
+    used = np.array([True, False, False, False, False, False])
+    v_in = np.array([-0.3, -0.3, -0.3, np.nan, -0.1, -0.3])
+    v_out = np.array([0.3, 0.25, 0.5, 0.3, 0.1, np.nan])
+    radius = np.full(6, 0.3)
+    np.testing.assert_array_equal(shows_array(used, v_in, v_out, radius), [True, True, False, False, False, False])

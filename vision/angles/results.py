@@ -90,6 +90,26 @@ def contact_run(gaps: np.ndarray, tol: np.ndarray | float, cl: Ragged, cfg: Meas
     return touching[cl.start], i0, i1, frac
 
 
+def shows_array(used: np.ndarray, v_in: np.ndarray, v_out: np.ndarray, radius: np.ndarray,
+                tol: float = 0.3) -> np.ndarray:
+    """Stations whose edges place the array: those whose edges the centre line used (``used``),
+    and those whose two edges were found the array's width apart (within ``tol`` of it,
+    dimensionless) but not used (a band's glare or blur beside them).
+
+    Parameters
+    ----------
+    used : ndarray of bool
+        Stations whose edges the centre line used.
+    v_in, v_out : ndarray
+        Inner and outer edge offsets (mm; NaN where not found).
+    radius : ndarray
+        The array's radius (mm) at each station.
+    tol : float
+        Largest relative difference of the edges' distance from the array's diameter.
+    """
+    return used | (np.abs(v_out - v_in - 2.0 * radius) <= tol * 2.0 * radius)  # NaN compares False
+
+
 def unseen_span(theta: np.ndarray, measured: np.ndarray, away: np.ndarray, i0: np.ndarray, i1: np.ndarray,
                 cl: Ragged) -> np.ndarray:
     """Per frame, the angle (rad) from the last centre-line point with measured edges at or
@@ -235,8 +255,9 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     c2, j0, j1, f2 = contact_run(gaps, tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
     swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
+    v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
     measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
-    measured[inner] = seen[at]
+    measured[inner] = shows_array(seen, v_in, v_out, radius)[at]
     blind = unseen_span(theta, measured, gaps > tol, i0, i1, cl)
     bot = np.where(contact[:, None], points[i0] + frac[:, None] * (points[i1] - points[i0]), points[cl.start])
     seg = np.diff(points, axis=0)
