@@ -32,7 +32,7 @@ import pandas as pd
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.stream import (ExtractLog, frame_row, measure_frames, prepare_plan, raised_row,
                                              try_measure)
-from tympani.pipeline.extract.video import copies_to_switch, motion_checks, trial_name
+from tympani.pipeline.extract.video import copies_to_switch, flagged_by_motion, trial_name
 from tympani.pipeline.force.forcelog import read_csv_columns
 from tympani.pipeline.io import atomic_write_bytes, atomic_write_csv
 from tympani.vision.drawing import annotate_frame
@@ -416,10 +416,8 @@ def _copy_switches(rows: list[dict], log: ExtractLog, cfg: ExtractConfig) -> lis
     """The registrations (positions in ``log.epochs``) that extraction measures again on the
     doubled walls' other copy (:func:`~tympani.pipeline.extract.video.copies_to_switch`), with
     the frames the motion checks mark left out of the evidence, as there."""
-    checked = copy.deepcopy(rows)
-    motion_checks(checked, cfg)
-    flagged = frozenset(a["frame"] for a, b in zip(rows, checked) if a["ok"] and not b["ok"])
-    return copies_to_switch(rows, log.epochs, flagged)
+    _, flagged = flagged_by_motion(copy.deepcopy(rows), cfg)
+    return list(copies_to_switch(rows, log.epochs, flagged))
 
 
 def _rows_table(rows: list[dict]) -> pd.DataFrame:

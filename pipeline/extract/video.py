@@ -46,6 +46,7 @@ __all__ = [
     "remeasure_after_moves",
     "prefers_other_copy",
     "copies_to_switch",
+    "flagged_by_motion",
     "remeasure_on_other_copy",
     "flag_glitches",
     "flag_sparse",
@@ -128,9 +129,7 @@ def extract_video(
     changes = remeasure_after_moves(source, rows, log, cfg, name, steps=steps)
     log.add_time("remeasure", time.perf_counter() - t0)
     notes = [c.note() for c in changes if c.first is not None]
-    measured = [r["ok"] for r in rows]
-    checked = motion_checks(rows, cfg)
-    flagged = frozenset(r["frame"] for r, ok in zip(rows, measured) if ok and not r["ok"])
+    checked, flagged = flagged_by_motion(rows, cfg)
     t0 = time.perf_counter()
     switched = remeasure_on_other_copy(source, rows, log, cfg, name, steps=steps, flagged=flagged)
     log.add_time("remeasure", time.perf_counter() - t0)
@@ -180,6 +179,14 @@ def motion_checks(rows: list[dict], cfg: ExtractConfig) -> list[str]:
         if note:
             notes.append(note)
     return notes
+
+
+def flagged_by_motion(rows: list[dict], cfg: ExtractConfig) -> tuple[list[str], frozenset[int]]:
+    """:func:`motion_checks` of ``rows`` (changed in place): its notes, and the frames it marked
+    not ok (measured before, a tip misread)."""
+    measured = [r["ok"] for r in rows]
+    notes = motion_checks(rows, cfg)
+    return notes, frozenset(r["frame"] for r, ok in zip(rows, measured) if ok and not r["ok"])
 
 
 def flag_lone(rows: list[dict], reach: int) -> int:
@@ -381,18 +388,19 @@ def prefers_other_copy(support_mm: np.ndarray) -> bool:
     return bool(s.sum() >= OTHER_COPY_MM and for_other >= OTHER_COPY_FRAMES and for_other >= 3 * for_this)
 
 
-def copies_to_switch(rows: list[dict], epochs: Sequence[Epoch], flagged: frozenset[int] = frozenset()) -> list[int]:
-    """Positions in ``epochs`` of the registrations on doubled walls whose measured frames
-    (``rows``, but for those in ``flagged``) say the array touches the other copy
-    (:func:`prefers_other_copy`)."""
-    out = []
+def copies_to_switch(rows: list[dict], epochs: Sequence[Epoch], flagged: frozenset[int] = frozenset()
+                     ) -> dict[int, np.ndarray]:
+    """The registrations on doubled walls whose measured frames (``rows``, but for those in
+    ``flagged``) say the array touches the other copy (:func:`prefers_other_copy`): their
+    positions in ``epochs``, each with its frames' ``other_copy_mm`` (mm; the evidence)."""
+    out = {}
     for k, epoch in enumerate(epochs):
         if not getattr(epoch.registration, "walls_doubled", False) or not epoch.prepared:
             continue
         mine = [r for r in rows if r["reg_epoch"] == epoch.index]
         support = np.array([r.get("other_copy_mm", math.nan) for r in mine if r["frame"] not in flagged], dtype=float)
         if any("time_ms" in r for r in mine) and prefers_other_copy(support):
-            out.append(k)
+            out[k] = support
     return out
 
 
@@ -417,10 +425,8 @@ def remeasure_on_other_copy(source: FrameSource, rows: list[dict], log: ExtractL
         A note for each registration switched.
     """
     notes = []
-    for k in copies_to_switch(rows, log.epochs, flagged):
+    for k, support in copies_to_switch(rows, log.epochs, flagged).items():
         epoch = log.epochs[k]
-        support = np.array([r.get("other_copy_mm", math.nan) for r in rows
-                            if r["reg_epoch"] == epoch.index and r["frame"] not in flagged], dtype=float)
         # the frames measured with it (frames of a lost span, never measured, stay as they are)
         at = {row["frame"]: i for i, row in enumerate(rows) if row["reg_epoch"] == epoch.index and "time_ms" in row}
         other = epoch.registration.other_copy()

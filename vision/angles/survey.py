@@ -298,8 +298,9 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     lit = ((coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]).sum(axis=1)
     across_mm = sa * float(plan.u[1] - plan.u[0]) * plan.half_mm[::sa]  # the coarse offsets' spacing
     band = (lit > 0) & (lit * across_mm <= cfg.band_width_mm) & view_c
-    runs = _array_runs(dark, probe, cfg.max_gap_mm / (sa * step), band, _band_border_c(cfg, step))
-    resumes = _run_resumes(dark, band, runs, cfg.max_gap_mm / (sa * step), int(np.ceil(cfg.resume_mm / (sa * step))),
+    max_gap_c = cfg.max_gap_mm / (sa * step)
+    runs = _array_runs(dark, probe, max_gap_c, band, _band_border_c(cfg, step))
+    resumes = _run_resumes(dark, band, runs, max_gap_c, int(np.ceil(cfg.resume_mm / (sa * step))),
                            int(np.ceil(cfg.resume_length_mm / (sa * step)))).tolist()
     tips_c = runs.tolist()
     out: list[Survey | FrameMeasurement] = []

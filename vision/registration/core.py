@@ -138,7 +138,6 @@ def _best_pose(
             return best if best is None else rescaled(best)
 
 
-
 def register(
     gray_frames: list[np.ndarray] | np.ndarray,
     phantom: Phantom = DEFAULT_PHANTOM,
