@@ -96,15 +96,17 @@ def array_ratio(
     float
         A low quantile (0.3) of darkest / brightest over stations where the array shows
         beside the fluid (brightest near the fluid level, darkest below 0.88 of it, an edge
-        steeper than 5 % of it between neighbouring samples, and so at the two stations either
-        side): a ratio taken side by side, so uneven lighting cancels;
-        stations only partly covered (band borders, the tip) raise it, hence not the median.
+        steeper than 5 % of it between neighbouring samples, and so at the station either side
+        and, unless a metal band brighter than the fluid lies there, at the next ones): a ratio
+        taken side by side, so uneven lighting cancels; stations only partly covered (band
+        borders, the tip) raise it, hence not the median.
         NaN when fewer than ``min_count`` stations show both: a dim channel (vignetting) is
         not taken for an array filling it.
     """
     ratio = darkest / np.maximum(brightest, 1.0)
     beside = in_view & (ratio < 0.88) & (np.abs(brightest / fluid - 1.0) < 0.15) & (steepest > 0.05 * brightest)
-    beside[2:-2] &= beside[:-4] & beside[1:-3] & beside[3:-1] & beside[4:]  # not at band borders
+    near = beside | (in_view & (brightest > 1.15 * fluid))  # or a metal band
+    beside[2:-2] &= beside[1:-3] & beside[3:-1] & near[:-4] & near[4:]  # not at band borders
     if beside.sum() < max(min_count, 3):
         return float("nan")
     return quantile(ratio[beside], 0.3)

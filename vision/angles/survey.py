@@ -137,15 +137,18 @@ def _array_ratios(
     ndarray, shape (B,)
         A low quantile (0.3) of darkest / brightest over stations where the array shows
         beside the fluid (brightest near the fluid level, darkest below 0.88 of it, an edge
-        steeper than 5 % of it between neighbouring samples, and so at the two stations either
-        side): a ratio taken side by side, so uneven lighting cancels; stations only partly
-        covered (band borders, the tip) raise it, hence not the median. NaN when fewer than
-        ``min_count`` stations show both: a dim channel (vignetting) is not taken for an array
-        filling it.
+        steeper than 5 % of it between neighbouring samples, and so at the station either side
+        and, unless a metal band brighter than the fluid lies there, at the next ones: bands
+        as long as the body between them leave it only three stations at a time): a ratio
+        taken side by side, so uneven lighting cancels; stations only partly covered (band
+        borders, the tip) raise it, hence not the median. NaN when fewer than ``min_count``
+        stations show both: a dim channel (vignetting) is not taken for an array filling it.
     """
     ratio = darkest / np.maximum(brightest, 1.0)
     beside = in_view & (ratio < 0.88) & (np.abs(brightest / fluid - 1.0) < 0.15) & (steepest > 0.05 * brightest)
-    beside[:, 2:-2] &= beside[:, :-4] & beside[:, 1:-3] & beside[:, 3:-1] & beside[:, 4:]
+    # its neighbours show it too, but for a metal band two stations away
+    near = beside | (in_view & (brightest > 1.15 * fluid))
+    beside[:, 2:-2] &= beside[:, 1:-3] & beside[:, 3:-1] & near[:, :-4] & near[:, 4:]
     rho = row_quantiles(ratio, beside, 0.3)
     return np.where(beside.sum(axis=1) < max(min_count, 3), np.nan, rho)
 
