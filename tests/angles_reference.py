@@ -2,8 +2,8 @@
 tests/test_angles_batch.py checks the batch helpers against, frame by frame.
 
 Each function takes one frame's stations. Batch counterparts: :func:`fluid_level` and
-:func:`array_ratio` of ``survey._fluid_levels`` and ``survey._array_ratios`` (frames stacked
-along a leading axis); :func:`smooth_valid`, :func:`near`, :func:`running_median`,
+:func:`array_ratio` and :func:`run_resumes` of ``survey._fluid_levels``, ``survey._array_ratios``
+and ``survey._run_resumes`` (frames stacked along a leading axis); :func:`smooth_valid`, :func:`near`, :func:`running_median`,
 :func:`extrapolate`, :func:`tip_crossing` and :func:`distance_from_tip` of the ``*_ragged``
 functions of :mod:`tympani.vision.angles.ragged` (frames' stations laid end to end).
 """
@@ -276,3 +276,23 @@ def distance_from_tip(line: np.ndarray, tip_mm: np.ndarray, stations: np.ndarray
     seg = np.hypot(d[:, 0], d[:, 1])
     s = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]]) + float(np.hypot(*(line[-1] - tip_mm)))
     return np.where(stations > tip, 0.0, s)
+
+
+def run_resumes(dark: np.ndarray, band: np.ndarray, end: int, max_gap: float, reach: int, length: int) -> bool:
+    """Whether a run of dark or band stations (``dark``, ``band``: shape (n,)), bridging gaps up
+    to ``max_gap`` stations, starts within ``reach`` stations past ``end`` (−1: no run, False),
+    goes on for ``length`` stations or more and holds two or more separate band stretches."""
+    if end < 0:
+        return False
+    carry = dark | band
+    starts_b = band.copy()
+    starts_b[1:] &= ~band[:-1]
+    e = end + 1
+    at = np.flatnonzero(carry[e:])  # stations past the end
+    if not len(at):
+        return False
+    breaks = np.flatnonzero(np.diff(at) - 1 > max_gap)
+    first, last = at[np.r_[0, breaks + 1]], at[np.r_[breaks, len(at) - 1]]
+    count = np.concatenate([[0], np.cumsum(starts_b[e:])])
+    bands = count[last + 1] - count[first]
+    return bool(np.any((first < reach) & (last - first >= length) & (bands >= 2)))

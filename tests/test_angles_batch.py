@@ -210,8 +210,8 @@ def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", range(5))
 def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
-    """fill_rows (integer and half positions), interp_rows and _array_runs (with and without
-    metal bands) against np.interp and _array_run row by row."""
+    """fill_rows (integer and half positions), interp_rows, _array_runs (with and without
+    metal bands) and _run_resumes against np.interp, _array_run and run_resumes row by row."""
     rng = np.random.default_rng(seed)
     n_rows, n = 6, int(rng.integers(2, 30))
     for x in (np.arange(n, dtype=float), 4 * np.arange(n) + 1.5):
@@ -241,6 +241,10 @@ def test_batch_interpolations_and_runs_equal_per_frame(seed: int) -> None:
     border = int(rng.integers(0, 3))
     np.testing.assert_array_equal(survey._array_runs(dark, probe, gap, band, border),
                                   [_array_run(d, probe, gap, b, border) for d, b in zip(dark, band)])
+    end = rng.integers(-1, n, n_rows)
+    reach, length = int(rng.integers(1, 20)), int(rng.integers(1, 40))
+    np.testing.assert_array_equal(survey._run_resumes(dark, band, end, gap, reach, length),
+                                  [ref.run_resumes(d, b, int(e), gap, reach, length) for d, b, e in zip(dark, band, end)])
 
 
 

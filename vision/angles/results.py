@@ -14,6 +14,12 @@ from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import Ragged
 
 
+def _up(rad: float) -> str:
+    """``rad`` (rad) rounded up to two decimals, so that a span just over a limit does not read
+    as the limit itself."""
+    return f"{math.ceil(rad * 100.0 - 1e-9) / 100.0:.2f}"
+
+
 def contact_tolerance(gaps: np.ndarray, cl: Ragged, cfg: MeasureConfig) -> np.ndarray:
     """The contact tolerance (mm) at each centre-line point: ``cfg.contact_tol_mm`` raised by any
     bias of its frame's measured gaps (:attr:`MeasureConfig.contact_bias_mm`): the lower median
@@ -291,11 +297,11 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
                                    **extras))
             continue
         if contact_b and not in_entry and blind_b > cfg.contact_swing_rad:
-            results.append(failure(f"contact start unclear: no array edges over the {blind_b:.2f} rad it lies in",
+            results.append(failure(f"contact start unclear: no array edges over the {_up(blind_b)} rad it lies in",
                                    **extras))
             continue
         if swing_b > cfg.contact_swing_rad:
-            results.append(failure(f"contact start unclear: {swing_b:.2f} rad further with the gaps {plan.gap_resolution_px:.2g} "
+            results.append(failure(f"contact start unclear: {_up(swing_b)} rad further with the gaps {plan.gap_resolution_px:.2g} "
                                    "px narrower", **extras))
             continue
         results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,

@@ -224,21 +224,26 @@ def _run_resumes(dark: np.ndarray, band: np.ndarray, end: np.ndarray, max_gap: f
     than a bubble, the array going on where its body is too light to count as dark (the run
     ended at a shadow's edge), or a chain of bubbles ahead of the tip. Shading across the
     fluid makes no bands."""
-    carry = dark | band
-    starts_b = band.copy()
-    starts_b[:, 1:] &= ~band[:, :-1]
-    out = np.zeros(len(end), dtype=bool)
-    for b in np.flatnonzero(end >= 0).tolist():
-        e = int(end[b]) + 1
-        at = np.flatnonzero(carry[b, e:])  # stations past the end
-        if not len(at):
-            continue
-        breaks = np.flatnonzero(np.diff(at) - 1 > max_gap)
-        first, last = at[np.r_[0, breaks + 1]], at[np.r_[breaks, len(at) - 1]]
-        count = np.concatenate([[0], np.cumsum(starts_b[b, e:])])
-        bands = count[last + 1] - count[first]
-        out[b] = bool(np.any((first < reach) & (last - first >= length) & (bands >= 2)))
-    return out
+    n_rows, n = dark.shape
+    at = np.arange(n)
+    past = (at > end[:, None]) & (end[:, None] >= 0)
+    carry = (dark | band) & past
+    # the previous carrying station past the end (−n−max_gap−2: none), to break runs at wide gaps
+    none = -n - int(max_gap) - 2
+    prev = np.maximum.accumulate(np.where(carry, at, none), axis=1)
+    prev = np.concatenate([np.full((n_rows, 1), none), prev[:, :-1]], axis=1)
+    first = carry & (at - prev - 1 > max_gap)  # each run's first station
+    flat = np.flatnonzero(carry)  # row-major: runs are contiguous
+    if not len(flat):
+        return np.zeros(n_rows, dtype=bool)
+    starts = np.flatnonzero(first.ravel()[flat])
+    lo, hi = flat[starts], flat[np.r_[starts[1:], len(flat)] - 1]  # each run's first and last (flat)
+    band_starts = band.copy()
+    band_starts[:, 1:] &= ~band[:, :-1]
+    count = np.concatenate([[0], np.cumsum(band_starts.ravel())])
+    row = lo // n
+    ok = ((lo % n) - end[row] - 1 < reach) & (hi - lo >= length) & (count[hi + 1] - count[lo] >= 2)
+    return np.bincount(row[ok], minlength=n_rows) > 0
 
 
 def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | FrameMeasurement]:
