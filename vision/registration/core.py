@@ -43,10 +43,10 @@ from tympani.vision.registration.verify import WallFit, check_walls, edge_layers
 # refining the others (nothing else could explain clearly more of the walls).
 _EXCELLENT = 0.85
 # A best fit that does not explain that much is refined again from these multiples of its scale
-# (and turned along the spiral's valley), and replaced by a fit at least _RESTART_STEP away in
-# scale that explains at least _RESTART_GAIN times as much of the walls with no larger residual:
-# where a wall's copies are regions (a channel seen twice through a thick plate), a fit between
-# them settles a few percent off in scale (an independent renderer: 5.8 % and 4.6 px off, 57 mm of
+# (and turned along the spiral's valley where that explains more), and replaced by a fit at least
+# _RESTART_STEP away in scale that explains at least _RESTART_GAIN times as much of the walls
+# with no larger residual: where a wall's copies are regions (a channel seen twice through a
+# thick plate), a fit between them settles a few percent off in scale (an independent renderer: 5.8 % and 4.6 px off, 57 mm of
 # walls explained, residual 0.99 px; at the true scale 65 mm, 0.41 px). A fit at the same scale
 # that explains more is the other copy, which the array decides between (see doubled_walls);
 # one that explains more with a larger residual is not better.
@@ -83,18 +83,26 @@ def _best_pose(
         tol = cfg.inlier_tol_px + (cfg.max_line_half_width_px if half_width is None else 0.0)
         return wall_fit_from(pose, layers, sub, half_width, tol)
 
+    def refined(start: CameraPose) -> tuple[CameraPose, float, WallFit]:
+        """``start`` refined at full resolution, or its turn along the valley where that
+        explains more of the walls."""
+        pose, half_width = refine_fine(start, edges, model, cfg)
+        result = fit(pose, cfg.model_spacing_px, half_width)
+        delta = valley_scan(pose, edges.pyramid, model, b_per_rad)
+        if delta != 0.0:
+            turned, turned_hw = refine_fine(valley_pose(pose, delta, b_per_rad), edges, model, cfg)
+            turned_fit = fit(turned, cfg.model_spacing_px, turned_hw)
+            if turned_fit.matched_length_mm > result.matched_length_mm:
+                return turned, turned_hw, turned_fit
+        return pose, half_width, result
+
     def rescaled(best: tuple[CameraPose, float, WallFit]) -> tuple[CameraPose, float, WallFit]:
         pose0 = best[0]
         for k in _RESTART_SCALES:
-            start = CameraPose(pose0.centre_x_px, pose0.centre_y_px, pose0.rotation_rad, k * pose0.px_per_mm,
-                               pose0.mirrored)
-            pose, half_width = refine_fine(start, edges, model, cfg)
-            delta = valley_scan(pose, edges.pyramid, model, b_per_rad)
-            if delta != 0.0:
-                pose, half_width = refine_fine(valley_pose(pose, delta, b_per_rad), edges, model, cfg)
+            pose, half_width, result = refined(CameraPose(pose0.centre_x_px, pose0.centre_y_px, pose0.rotation_rad,
+                                                          k * pose0.px_per_mm, pose0.mirrored))
             if not 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
                 continue
-            result = fit(pose, cfg.model_spacing_px, half_width)
             if (abs(pose.px_per_mm / pose0.px_per_mm - 1.0) >= _RESTART_STEP
                     and result.matched_length_mm >= _RESTART_GAIN * best[2].matched_length_mm
                     and result.residual_px <= best[2].residual_px):
@@ -104,7 +112,7 @@ def _best_pose(
     excellent = _EXCELLENT * model.length_mm
     remaining = list(proposals)
     coarse: list[Proposal] = []
-    refined: list[Proposal] = []  # those of ``coarse`` already refined at full resolution
+    done: list[Proposal] = []  # those of ``coarse`` already refined at full resolution
     best = None
     while True:
         # proposals to half resolution (until one explains nearly all the walls) ...
@@ -117,16 +125,9 @@ def _best_pose(
                     break
         # ... and the best supported few not yet refined to full resolution
         ranked = distinct(sorted(coarse, key=lambda p: -p.score), len(coarse))
-        for prop in [p for p in ranked if not any(p is q for q in refined)][: cfg.n_fine]:
-            refined.append(prop)
-            pose, half_width = refine_fine(prop.pose, edges, model, cfg)
-            result = fit(pose, cfg.model_spacing_px, half_width)
-            delta = valley_scan(pose, edges.pyramid, model, b_per_rad)
-            if delta != 0.0:
-                turned, turned_hw = refine_fine(valley_pose(pose, delta, b_per_rad), edges, model, cfg)
-                turned_fit = fit(turned, cfg.model_spacing_px, turned_hw)
-                if turned_fit.matched_length_mm > result.matched_length_mm:
-                    pose, half_width, result = turned, turned_hw, turned_fit
+        for prop in [p for p in ranked if not any(p is q for q in done)][: cfg.n_fine]:
+            done.append(prop)
+            pose, half_width, result = refined(prop.pose)
             if best is None or result.matched_length_mm > best[2].matched_length_mm:
                 best = (pose, half_width, result)
             if result.matched_length_mm >= excellent:
