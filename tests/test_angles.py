@@ -739,6 +739,49 @@ def test_a_bubble_against_the_tip_takes_off_no_more_than_its_rim(line_rows: slic
     assert tip - 1 - rim <= end <= tip + 1, (end, stop)
 
 
+def _narrow_bubble_ahead(gap_mm: float) -> tuple[np.ndarray, int, float, float]:
+    """Coverage (0 fluid, 1 array; offsets x stations, 0.026 x 0.034 mm) of an array 0.6 mm wide
+    ending at station 100, then ``gap_mm`` of fluid, then a bubble no wider than the array (rim
+    0.08 mm, bright interior 0.44 mm across) with a dark line (a wall's other copy) going on
+    from its far side along the array's path. Returns the coverage, the array's last station and
+    the two spacings (mm)."""
+    step, offset, last = 0.034, 0.026, 100
+    cover = np.zeros((51, 200))
+    cover[19:42, : last + 1] = 1.0
+    start = last + 1 + int(round(gap_mm / step))  # the bubble's near rim
+    sx, sy = np.meshgrid(np.arange(200) * step, np.arange(51) * offset)
+    r = np.hypot(sx - (start * step + 0.30), sy - 30 * offset)
+    cover[(r >= 0.22) & (r <= 0.30)] = 1.0
+    cover[r < 0.22] = -0.2
+    cover[27:34, start + int(round(0.58 / step)) :] = 1.0
+    return cover, last, step, offset
+
+
+@pytest.mark.parametrize("gap_mm", [0.0, 0.2, 0.4])
+def test_a_bubble_no_wider_than_the_array_a_little_ahead_of_the_tip(gap_mm: float) -> None:
+    """A bubble no wider than the array, with more dark beyond it on the array's path, reads
+    along the channel like the array's last metal band (rim and interior) with array beyond.
+    Touching the tip (gap 0) it stays so (a band has the array's body before it); with fluid
+    0.2 or 0.4 mm long before its rim, the array ends before the fluid (before that rule the
+    array ran on through the bubble and the line to the window's end). An independent
+    renderer's bubble 0.57 mm across pushed 0.3-0.6 mm ahead of the tip was read so, the tip
+    0.43 rad too far and the contact missed, frame after frame."""
+    from tympani.vision.angles.bubbles import bubble_end
+
+    cfg = MeasureConfig()
+    cover, last, step, offset = _narrow_bubble_ahead(gap_mm)
+    dark = cover.max(axis=0) >= cfg.dark_level
+    seed = np.full(cover.shape[1], 30)
+    inside = np.zeros(51, dtype=bool)
+    inside[3:48] = True
+    end, stop = bubble_end(cover, dark, seed, inside, int(np.flatnonzero(dark)[-1]), step, offset, 0.6, cfg)
+    if gap_mm == 0.0:
+        assert stop is None and end == int(np.flatnonzero(dark)[-1]), (end, stop)
+    else:
+        rim = last + 1 + int(round(gap_mm / step))  # where the rim begins
+        assert end == last and stop is not None and abs(stop - rim) <= 1, (end, stop)
+
+
 def test_a_tip_read_across_a_wall_into_the_next_turn_is_refused():
     """A dark hook (a shadow, a bubble's rim) from the tip across the thin wall between two turns
     into the next turn inwards, at eight random poses and looks (18-30 px/mm, depths 11-14 mm):

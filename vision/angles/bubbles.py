@@ -132,6 +132,31 @@ def _chain_start(k: int, far: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, 
         k, far = j, int(gap[j]) // 2
 
 
+# Coverage (0 fluid, 1 array) within which a station shows plain fluid: neither the array's
+# body nor a metal band (brighter than the fluid: negative coverage).
+_FLUID_COVER = 0.25
+# How far (mm) before a bubble's near rim fluid is sought: past the rim's blurred border.
+_GAP_WINDOW_MM = 0.25
+
+
+def _fluid_before_rim(cover: np.ndarray, start: int, track: int, reach: int, step_mm: float,
+                      cfg: MeasureConfig) -> bool:
+    """Whether plain fluid lies on the array's path (offsets ``track`` ± ``reach`` of ``cover``)
+    before a dark stretch no thicker than two rims that ends at station ``start``, over at least
+    ``cfg.bubble_gap_mm``: a bubble's near rim with fluid before it. A metal band has the array's
+    body before it, or another band (brighter than the fluid) and a short body."""
+    lane = cover[max(track - reach, 0) : track + reach + 1, :start]
+    if lane.shape[1] == 0:
+        return False
+    dark = lane.max(axis=0) >= cfg.dark_level
+    rim = int(np.argmin(dark[::-1])) if not dark.all() else len(dark)  # the dark stretch ending at start
+    if rim * step_mm > 2.0 * cfg.bubble_rim_mm:
+        return False
+    before = lane[:, : len(dark) - rim][:, -int(np.ceil(_GAP_WINDOW_MM / step_mm)):]
+    fluid = np.abs(before).max(axis=0) < _FLUID_COVER
+    return bool(fluid.sum() >= max(2, int(np.ceil(cfg.bubble_gap_mm / step_mm))))
+
+
 def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np.ndarray, end: int,
                 step_mm: float, offset_mm: float, diameter_mm: float, cfg: MeasureConfig) -> tuple[int, int | None]:
     """Where the array ends when an air bubble sits at or ahead of its tip.
@@ -193,8 +218,9 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
         path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
         far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
-        if wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm:
-            continue  # as narrow as a band, and array beyond it
+        if (wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm
+                and not _fluid_before_rim(cover, x[k], int(round(track)), reach, step_mm, cfg)):
+            continue  # as narrow as a band, with array before and beyond it
         k, far = _chain_start(k, far, x, w, y, h, compact, cfg.bubble_chain * cfg.bubble_rim_mm / step_mm)
         # the rim before it, and any array it touches: the longest dark run that ends where the
         # interior begins, over the interior's rows

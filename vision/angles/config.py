@@ -132,6 +132,12 @@ class MeasureConfig:
     bubble_rim_mm : float
         Longest dark stretch (mm) along the array's path beyond a narrower one for it to be a
         bubble's rim rather than more array.
+    bubble_gap_mm : float
+        Least plain fluid (mm) on the array's path just before a bubble-like interior's near rim
+        (no thicker than two rims) for it to be a bubble, however narrow: a metal band has the
+        array's body before it. A bubble as wide as the array pushed a little ahead of the tip
+        reads otherwise as its last band and tip (an independent renderer: the tip 0.43 rad too
+        far, the contact missed, frame after frame).
     bubble_chain : float
         Bubbles touching in a chain show two rims between their interiors: a dark stretch up to
         this many times ``bubble_rim_mm`` that ends at another bubble-like interior is taken for
@@ -244,6 +250,7 @@ class MeasureConfig:
     bubble_aspect: float = 2.5
     bubble_wider: float = 1.15
     bubble_rim_mm: float = 0.2
+    bubble_gap_mm: float = 0.1
     bubble_chain: float = 1.5
     bubble_track_mm: float = 0.6
     max_gap_mm: float = 0.8
