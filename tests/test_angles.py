@@ -972,6 +972,28 @@ def test_a_dark_stretch_past_the_arrays_edges_is_refused() -> None:
     assert off_before >= 6, off_before  # the scenario is the failure the rule fixes
 
 
+def _banded_views(rng: np.random.Generator, band_mm: tuple[float, float], body_mm: tuple[float, float],
+                  n_bands: int, brighter: float, strength: float, depths: tuple[float, ...]):
+    """One random pose (15-20 px/mm) and look of an array with ``n_bands`` bands ``band_mm`` long
+    (mm, drawn from the range) and ``body_mm`` of body between them, the bands ``brighter`` grey
+    levels brighter than the fluid (clipped at 255), nuisances of ``strength``, at ``depths``
+    (mm), registered from the first frame: yields (true state, grey frame, registration, array)."""
+    from tympani.vision.registration import register
+
+    pose = random_pose(rng, W, H, px_per_mm=(15.0, 20.0))
+    band = float(rng.uniform(*band_mm))
+    array = ElectrodeArray(band_length_mm=band, band_pitch_mm=band + float(rng.uniform(*body_mm)), n_bands=n_bands)
+    look = random_appearance(rng)
+    look = replace(look, band_level=float(min(255.0, look.fluid + brighter)))
+    scene = Scene(pose, W, H, look, random_nuisance(rng, strength), array=array, rng=rng)
+    reg = None
+    for depth in depths:
+        state = pose_at_depth(depth, array=array)
+        gray = _gray(scene.render(state))
+        reg = reg or register([gray])
+        yield state, gray, reg, array
+
+
 def test_long_bright_bands_do_not_end_the_array() -> None:
     """Metal bands 0.85-0.95 mm long, 50 grey levels brighter than the fluid (clipped at 255),
     the dark body between them 0.5-0.7 mm: a band is longer than the fluid-like gap the array's
@@ -983,22 +1005,11 @@ def test_long_bright_bands_do_not_end_the_array() -> None:
     rad short where the fluid is so bright, 186-245, that a band can be no brighter, before
     stations with dark wider than the array were left out; they are refused now); without the
     bands carrying the run no frame is right (11 were short before that rule; all are refused)."""
-    from tympani.vision.registration import register
-
     right, short, right_before = 0, 0, 0
     for seed in range(10):
-        rng = np.random.default_rng(900 + seed)
-        pose = random_pose(rng, W, H, px_per_mm=(15.0, 20.0))
-        band = float(rng.uniform(0.85, 0.95))
-        array = ElectrodeArray(band_length_mm=band, band_pitch_mm=band + float(rng.uniform(0.5, 0.7)))
-        look = random_appearance(rng)
-        look = replace(look, band_level=float(min(255.0, look.fluid + 50.0)))
-        scene = Scene(pose, W, H, look, random_nuisance(rng, 0.3), array=array, rng=rng)
-        reg = None
-        for depth in (6.0, 10.0, 14.0):
-            state = pose_at_depth(depth, array=array)
-            gray = _gray(scene.render(state))
-            reg = reg or register([gray])
+        views = _banded_views(np.random.default_rng(900 + seed), (0.85, 0.95), (0.5, 0.7), 11, 50.0, 0.3,
+                              (6.0, 10.0, 14.0))
+        for state, gray, reg, array in views:
             m = measure_frame(gray, reg, array=array)  # told the bands, so their length at the tip
             before = measure_frame(gray, reg, array=array, cfg=MeasureConfig(band_level=np.inf))
             if m.ok:
@@ -1020,22 +1031,10 @@ def test_bands_about_as_long_as_the_body_between_them() -> None:
     and 14 mm, registered from the frame. Measured: 31 of 36 frames measured (20 before), theta_tip
     within 0.007 rad, theta_con within 0.10 rad; the rest refused (the fluid beside the
     array's base in the entry reads darker than the channel's)."""
-    from tympani.vision.registration import register
-
     errors = []
     for seed in range(12):
-        rng = np.random.default_rng(seed)
-        pose = random_pose(rng, W, H, px_per_mm=(15.0, 20.0))
-        band = float(rng.uniform(0.45, 0.55))
-        array = ElectrodeArray(band_length_mm=band, band_pitch_mm=band + float(rng.uniform(0.35, 0.5)), n_bands=16)
-        look = random_appearance(rng)
-        look = replace(look, band_level=float(min(255.0, look.fluid + 90.0)))
-        scene = Scene(pose, W, H, look, random_nuisance(rng, 0.2), array=array, rng=rng)
-        reg = None
-        for depth in (4.0, 9.0, 14.0):
-            state = pose_at_depth(depth, array=array)
-            gray = _gray(scene.render(state))
-            reg = reg or register([gray])
+        views = _banded_views(np.random.default_rng(seed), (0.45, 0.55), (0.35, 0.5), 16, 90.0, 0.2, (4.0, 9.0, 14.0))
+        for state, gray, reg, array in views:
             m = measure_frame(gray, reg, array=array)
             if m.ok:
                 errors.append((abs(m.theta_tip - state.truth.theta_tip), abs(m.theta_con - state.truth.theta_con)))
