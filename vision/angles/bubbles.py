@@ -139,17 +139,15 @@ _FLUID_COVER = 0.25
 _GAP_WINDOW_MM = 0.25
 
 
-def _fluid_before_rim(cover: np.ndarray, start: int, track: int, reach: int, step_mm: float,
-                      cfg: MeasureConfig) -> bool:
-    """Whether plain fluid lies on the array's path (offsets ``track`` ± ``reach`` of ``cover``)
-    before a dark stretch no thicker than two rims that ends at station ``start``, over at least
-    ``cfg.bubble_gap_mm``: a bubble's near rim with fluid before it. A metal band has the array's
-    body before it, or another band (brighter than the fluid) and a short body."""
-    lane = cover[max(track - reach, 0) : track + reach + 1, :start]
-    if lane.shape[1] == 0:
+def _fluid_before_rim(lane: np.ndarray, dark: np.ndarray, step_mm: float, cfg: MeasureConfig) -> bool:
+    """Whether plain fluid lies on the array's path (``lane``, its offsets' coverage up to a
+    bubble-like interior, and ``dark``, where it is dark) before a dark stretch no thicker than
+    two rims that ends at the interior, over at least ``cfg.bubble_gap_mm``: a bubble's near rim
+    with fluid before it. A metal band has the array's body before it, or another band
+    (brighter than the fluid) and a short body."""
+    if len(dark) == 0:
         return False
-    dark = lane.max(axis=0) >= cfg.dark_level
-    rim = int(np.argmin(dark[::-1])) if not dark.all() else len(dark)  # the dark stretch ending at start
+    rim = int(np.argmin(dark[::-1])) if not dark.all() else len(dark)  # the dark stretch ending at it
     if rim * step_mm > 2.0 * cfg.bubble_rim_mm:
         return False
     before = lane[:, : len(dark) - rim][:, -int(np.ceil(_GAP_WINDOW_MM / step_mm)):]
@@ -219,7 +217,7 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
         far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
         if (wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm
-                and not _fluid_before_rim(cover, x[k], int(round(track)), reach, step_mm, cfg)):
+                and not _fluid_before_rim(cover[rows, : x[k]], path[: x[k]], step_mm, cfg)):
             continue  # as narrow as a band, with array before and beyond it
         k, far = _chain_start(k, far, x, w, y, h, compact, cfg.bubble_chain * cfg.bubble_rim_mm / step_mm)
         # the rim before it, and any array it touches: the longest dark run that ends where the

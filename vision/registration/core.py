@@ -46,8 +46,9 @@ _EXCELLENT = 0.85
 # (and turned along the spiral's valley where that explains more), and replaced by a fit at least
 # _RESTART_STEP away in scale that explains at least _RESTART_GAIN times as much of the walls
 # with no larger residual: where a wall's copies are regions (a channel seen twice through a
-# thick plate), a fit between them settles a few percent off in scale (an independent renderer: 5.8 % and 4.6 px off, 57 mm of
-# walls explained, residual 0.99 px; at the true scale 65 mm, 0.41 px). A fit at the same scale
+# thick plate), a fit between them settles a few percent off in scale (an independent renderer:
+# 5.8 % and 4.6 px off, 57 mm of walls explained, residual 0.99 px; at the true scale 65 mm,
+# 0.41 px). A fit at the same scale
 # that explains more is the other copy, which the array decides between (see doubled_walls);
 # one that explains more with a larger residual is not better.
 _RESTART_SCALES = (0.92, 0.94, 0.96, 1.04, 1.06, 1.08)
