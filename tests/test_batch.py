@@ -24,7 +24,8 @@ from tympani.pipeline.extract import batch
 from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
-from tympani.pipeline.extract.video import ANGLE_COLUMNS, _window_medians, extract_video, flag_glitches, flag_lone, flag_sparse
+from tympani.pipeline.extract.video import (ANGLE_COLUMNS, _window_medians, contact_excursions, extract_video,
+                                           flag_excursions, flag_glitches, flag_lone, flag_sparse)
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -255,6 +256,72 @@ def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
     assert flag_glitches(_angle_rows([1.0, 5.0, 1.0, 1.0], [1.0] * 4), 0.25) == 0
 
 
+
+def test_flag_excursions_marks_a_run_whose_contact_start_goes_away_and_back():
+    """Frames 15-22 of a 30-frame insertion read theta_bot 1.5 rad further along than the frames
+    around them (the contact arc's base read off the wall frame after frame, past what the
+    two-frame glitch filter removes): marked, with the steps and the frames either side named;
+    an unmeasured frame inside the run is skipped. The contact start creeping along, and
+    stepping once as a contact run forms, are not excursions."""
+    rng = np.random.default_rng(16)
+    n = 30
+    tip = 0.5 + 0.16 * np.arange(n)
+    bot = np.r_[np.full(8, 0.35), np.linspace(0.40, 1.30, n - 8)] + rng.normal(0.0, 0.02, n)
+    bot[15:23] += 1.5
+    rows = _angle_rows(tip, bot)
+    rows[21]["ok"] = False
+    assert flag_excursions(rows, 0.5) == 7
+    assert [r["frame"] for r in rows if not r["ok"]] == list(range(15, 23))
+    d_away, d_back = bot[15] - bot[14], bot[23] - bot[22]
+    assert rows[15]["reason"] == f"contact start: frames 15-22 {d_away:+.2f} rad from frame 14, {d_back:+.2f} back by frame 23"
+    assert math.isnan(rows[18]["theta_con"]) and all(r["ok"] for r in rows if not 15 <= r["frame"] <= 22)
+    # off; a creeping contact start with one step (a contact run forming at frame 12) stays
+    assert flag_excursions(_angle_rows(tip, bot), 0.0) == 0
+    steady = np.r_[np.full(12, 2.0), np.full(18, 0.8)] + 0.03 * np.arange(n)
+    assert flag_excursions(_angle_rows(tip, steady), 0.5) == 0
+
+
+
+def _contact_start_away(gray, registration, phantom, array, cfg):
+    """The fake measurement, with frames 8-11 (brightness 30 + 10 i) reading theta_bot 1.5 rad
+    further along: the tip and the depth advance steadily throughout."""
+    i = round((float(gray[8:, :].mean()) - 30.0) / 10.0)
+    bot = 0.5 + 0.02 * i + (1.5 if 8 <= i <= 11 else 0.0)
+    m = fakes.fake_measure_frame(gray, registration, phantom, array, cfg)
+    return dataclasses.replace(m, theta_tip=2.5 + 0.1 * i, theta_bot=bot, theta_con=2.5 + 0.1 * i - bot,
+                               extras={"depth_mm": 2.0 + 0.5 * i})
+
+
+def test_extract_video_marks_a_contact_start_that_goes_away_and_back(tmp_path):
+    """Through the extraction: frames 8-11 of 20 are marked with the reason and a warning says
+    how many; with the check off (excursion_rad 0) every frame stays measured."""
+    path = fakes.write_video(tmp_path / "e.mp4", n=20)
+    steps = dataclasses.replace(STEPS, measure_frame=_contact_start_away)
+    table, _ = extract_video(path, fakes.fake_config(), steps=steps)
+    assert table.loc[~table["ok"], "frame"].tolist() == [8, 9, 10, 11]
+    assert table.loc[table["frame"] == 9, "reason"].item() == "contact start: frames 8-11 +1.52 rad from frame 7, -1.48 back by frame 12"
+    assert any(w.startswith("4 frame(s) marked not ok: their contact start went over 0.5 rad away") for w in table.attrs["warnings"])
+    table, _ = extract_video(path, fakes.fake_config(excursion_rad=0.0), steps=steps)
+    assert table["ok"].all()
+
+@pytest.mark.parametrize(
+    "bot, runs",
+    [
+        ([1.0] * 6 + [2.0] * 3 + [1.1] * 6, [(6, 8)]),  # away and back: the run between
+        ([1.0] * 6 + [0.2] * 3 + [1.1] * 6, [(6, 8)]),  # back towards the entry and forward again
+        ([1.0] * 6 + [2.0] * 3 + [3.0] * 6, []),  # two steps the same way: a staircase
+        ([1.0] * 6 + [2.5] * 3 + [2.0] * 6, []),  # it comes back less than the frames either side differ
+        ([1.0] * 4 + [2.0] * 8 + [1.1] * 3, []),  # more frames away than around: which side is right?
+        ([1.0] * 6 + [2.0] * 3 + [1.1] * 6 + [2.2] * 2 + [1.2] * 5, [(6, 8), (15, 16)]),  # two, apart
+        ([1.0] * 6 + [2.0] * 3 + [1.1] * 3 + [2.2] * 2 + [1.2] * 4, []),  # to and fro: no reference
+        ([1.0, 2.0, 1.0], [(1, 1)]),
+        ([1.0, 2.0], []),
+    ],
+)
+def test_contact_excursions_cases(bot, runs):
+    """Which stretches between steps of over 0.5 rad are excursions."""
+    assert contact_excursions(np.array(bot), 0.5) == runs
+
 def test_flag_lone_marks_frames_with_no_measured_neighbour_within_reach():
     """Frames 6 and 10 have no other measured frame within 3 frames (1, 6, 10 and 14 lie 4-5
     apart): marked; 0 and 1 check each other, 17 has 14 three frames away; a video of fewer
@@ -341,7 +408,8 @@ def test_window_medians_equal_the_clipped_windows_one_by_one():
 def test_extract_video_marks_a_glitch_and_says_so(tmp_path):
     """A frame measured 1.7 rad off its neighbours (here a fake measurement of an odd frame) is
     marked not ok in the angles table, with a warning; glitch_rad=0 leaves it to the kinematics
-    check (its depth is off the insertion too); both off keep it."""
+    check (its depth is off the insertion too); with that off too, its theta_bot, 0.75 rad from
+    both neighbours, is an excursion of one frame; all three off keep it."""
     path = tmp_path / "g.mp4"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (fakes.W, fakes.H))
     for i in range(12):
@@ -355,17 +423,22 @@ def test_extract_video_marks_a_glitch_and_says_so(tmp_path):
     assert table.loc[table["frame"] == 5, "reason"].item().startswith("kinematics: depth")
     assert any("1 frame(s) marked not ok off the constant-speed insertion" in w for w in table.attrs["warnings"])
     table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0), steps=STEPS)
+    assert table.loc[table["frame"] == 5, "reason"].item().startswith("contact start: frame 5 +0.")
+    table, _ = extract_video(path, fakes.fake_config(glitch_rad=0.0, kinematics_tol_mm=0.0, excursion_rad=0.0),
+                             steps=STEPS)
     assert table["ok"].all()
     # the command line: --glitch-rad reaches the extraction; a negative value is a usage error
     from tympani.pipeline.cli import main
 
     for rad, ok in (("0.25", False), ("0", True)):
         assert main(["extract", str(path), "--out", str(tmp_path / rad), "-q", "--glitch-rad", rad,
-                     "--kinematics-tol", rad if rad == "0" else "0.5"], steps=STEPS) == 0
+                     "--kinematics-tol", rad if rad == "0" else "0.5", "--excursion-rad", rad if rad == "0" else "0.5"],
+                    steps=STEPS) == 0
         angles = pd.read_csv(tmp_path / rad / "g.angles.csv")
         assert bool(angles.loc[angles["frame"] == 5, "ok"].item()) is ok
     assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--glitch-rad", "-1"]) == 2
     assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--kinematics-tol", "-1"]) == 2
+    assert main(["extract", str(path), "--out", str(tmp_path / "bad"), "--excursion-rad", "-1"]) == 2
 
 
 def test_registration_failure_is_input_error(tmp_path, fake_vision):

@@ -89,6 +89,9 @@ def _add_video_check_options(group: Any) -> None:
     group.add_argument("--kinematics-tol", type=nonneg_float, default=0.5, metavar="MM",
                        help="mark frames not ok, in runs as well as alone, whose insertion depth lies this far (mm) "
                             "from the video's constant-speed insertion (0: never; default 0.5)")
+    group.add_argument("--excursion-rad", type=nonneg_float, default=0.5, metavar="RAD",
+                       help="mark a run of frames not ok whose theta_bot steps this far (rad) away from the frames "
+                            "around it and back (0: never; default 0.5)")
     group.add_argument("--lone-reach", type=nonneg_int, default=3, metavar="N",
                        help="mark a measured frame not ok when no other frame within N frames either side is "
                             "measured: nothing checks it (0: never; default 3)")
@@ -108,7 +111,8 @@ def _extract_config(args: argparse.Namespace):
     if args.array_first_band is not None:
         start, length = args.array_first_band
         array = replace(array, first_band_mm=start, band_length_mm=length)
-    checks = dict(glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol, lone_reach=args.lone_reach,
+    checks = dict(glitch_rad=args.glitch_rad, kinematics_tol_mm=args.kinematics_tol,
+                  excursion_rad=args.excursion_rad, lone_reach=args.lone_reach,
                   sparse_share=args.sparse_share) if hasattr(args, "glitch_rad") else {}
     return ExtractConfig(recheck_every=args.recheck_every, register_frames=args.register_frames,
                          calibration=calibration, array=array, **checks)
@@ -489,7 +493,7 @@ def _run_run(args: argparse.Namespace) -> int:
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
                "--glitch-rad", str(args.glitch_rad), "--kinematics-tol", str(args.kinematics_tol),
-               "--lone-reach", str(args.lone_reach), "--sparse-share", str(args.sparse_share)]
+               "--excursion-rad", str(args.excursion_rad), "--lone-reach", str(args.lone_reach), "--sparse-share", str(args.sparse_share)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []

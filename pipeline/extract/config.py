@@ -108,6 +108,10 @@ class ExtractConfig:
         deviations of the video's depths about it, if more) from the video's constant-speed
         insertion is marked not ok (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`), in runs as
         well as alone; 0 keeps every frame.
+    excursion_rad : float
+        A run of measured frames whose theta_bot steps this far (rad) or more away from the
+        frames around it and back, fewer frames than those around it, is marked not ok
+        (:func:`~tympani.pipeline.extract.video.flag_excursions`); 0 keeps every frame.
     lone_reach : int
         A measured frame with no other frame measured within this many frames either side is
         marked not ok: nothing checks it (:func:`~tympani.pipeline.extract.video.flag_lone`; not
@@ -139,6 +143,7 @@ class ExtractConfig:
     decoder_threads: int | None = None
     glitch_rad: float = 0.25
     kinematics_tol_mm: float = 0.5
+    excursion_rad: float = 0.5
     lone_reach: int = 3
     sparse_share: float = 0.5
     calibration: LensCalibration | None = None
@@ -153,6 +158,8 @@ class ExtractConfig:
         check_decoder_threads(self.decoder_threads)
         if not self.glitch_rad >= 0:
             raise ValueError(f"glitch_rad must be >= 0 rad, not {self.glitch_rad!r}")
+        if not self.excursion_rad >= 0:
+            raise ValueError(f"excursion_rad must be >= 0 rad, not {self.excursion_rad!r}")
         if int(self.lone_reach) != self.lone_reach or self.lone_reach < 0:
             raise ValueError(f"lone_reach must be an integer >= 0, not {self.lone_reach!r}")
         if not self.kinematics_tol_mm >= 0:

@@ -6,7 +6,8 @@ measurement; :func:`extract_video` collects that stream into the angles table
 check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_glitches`) and
 frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`),
 measures again on the other copy of walls that show twice where the array touches that one
-(:func:`remeasure_on_other_copy`), marks the frames of a video mostly unread (:func:`flag_sparse`)
+(:func:`remeasure_on_other_copy`), marks runs of frames whose contact start goes away and comes
+back (:func:`flag_excursions`), marks the frames of a video mostly unread (:func:`flag_sparse`)
 and the measured frames with no other measured frame near (:func:`flag_lone`), and pools how
 wide the array looks (:func:`array_width`).
 """
@@ -49,6 +50,8 @@ __all__ = [
     "flagged_by_motion",
     "remeasure_on_other_copy",
     "flag_glitches",
+    "contact_excursions",
+    "flag_excursions",
     "flag_sparse",
     "flag_lone",
     "array_width",
@@ -136,6 +139,10 @@ def extract_video(
     if switched:  # the frames measured again are checked again
         checked = motion_checks(rows, cfg)
     notes += switched + checked
+    excursions = flag_excursions(rows, cfg.excursion_rad)
+    if excursions:
+        notes.append(f"{excursions} frame(s) marked not ok: their contact start went over {cfg.excursion_rad:g} rad "
+                     "away from the frames around them and came back")
     note = flag_sparse(rows, cfg.sparse_share)
     if note:
         notes.append(note)
@@ -605,6 +612,86 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
         mark_not_ok(rows[ok[j]], why[j])
     return int(marked.sum())
 
+
+
+def contact_excursions(theta_bot: np.ndarray, max_rad: float) -> list[tuple[int, int]]:
+    """Runs of a video's measured frames whose contact start leaves the others and comes back.
+
+    The series is cut where ``theta_bot`` steps by more than ``max_rad`` from one measured
+    frame to the next. A stretch between two such steps is an excursion when the steps go
+    opposite ways, the frames either side of it lie nearer each other than either step is
+    long, and it holds fewer frames than the stretches before and after it together: the
+    contact start went away and came back, and most of the frames around it say where it was.
+    A contact start that steps once (a contact run forming or breaking) and stays is no
+    excursion, and neither are two neighbouring stretches that would both be one (a series
+    swinging to and fro: no side is the reference).
+
+    Parameters
+    ----------
+    theta_bot : ndarray, shape (n,)
+        Contact start angles (rad) of the measured frames, in frame order.
+    max_rad : float
+        Least step (rad) between neighbouring measured frames that cuts the series.
+
+    Returns
+    -------
+    list of (int, int)
+        First and last index (into ``theta_bot``) of each excursion.
+    """
+    x = np.asarray(theta_bot, dtype=float)
+    step = np.diff(x)
+    cuts = np.r_[0, np.flatnonzero(np.abs(step) > max_rad) + 1, len(x)]  # stretch k: cuts[k] to cuts[k+1] - 1
+    found = np.zeros(len(cuts) + 1, dtype=bool)  # per stretch k at found[k]; False beyond the ends
+    for k in range(1, len(cuts) - 2):  # the stretches with a step on both sides
+        a, b = int(cuts[k]), int(cuts[k + 1]) - 1
+        away, back = step[a - 1], step[b]
+        flanks = (a - cuts[k - 1]) + (cuts[k + 2] - b - 1)
+        found[k] = away * back < 0 and abs(x[b + 1] - x[a - 1]) < min(abs(away), abs(back)) and b - a + 1 < flanks
+    # in a series that swings to and fro, neighbouring stretches both look like excursions and
+    # neither side says where the contact start was: those are left as they are
+    alone = found[1:-1] & ~found[:-2] & ~found[2:]
+    return [(int(cuts[k]), int(cuts[k + 1]) - 1) for k in np.flatnonzero(alone) + 1]
+
+
+def flag_excursions(rows: list[dict], max_rad: float) -> int:
+    """Mark runs of measured frames whose ``theta_bot`` goes away from the others and comes back
+    (:func:`contact_excursions`) not ok, in place.
+
+    The contact start moves with the insertion or steps when a contact run forms or breaks; a
+    run of frames that has it radians further along (or back) and then returns to where the
+    frames around it say it was is a run misread: a stretch of the contact arc read off the wall
+    frame after frame (walls that show twice, a wall line beside the array), which the glitch
+    filter (spikes of up to two frames) and the depth's kinematics (the tip is right) let
+    through. A contact run that truly lifts off the wall for a few frames is marked as well.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, angles in rad, ``reason``); changed
+        in place.
+    max_rad : float
+        Least step (rad) of ``theta_bot`` between neighbouring measured frames that starts or
+        ends an excursion; 0 or less does nothing.
+
+    Returns
+    -------
+    int
+        Frames marked.
+    """
+    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+    if max_rad <= 0 or len(ok) < 3:
+        return 0
+    x = np.array([float(rows[i]["theta_bot"]) for i in ok])
+    runs = contact_excursions(x, max_rad)
+    for a, b in runs:
+        first, last = rows[ok[a]]["frame"], rows[ok[b]]["frame"]
+        before, after = rows[ok[a - 1]]["frame"], rows[ok[b + 1]]["frame"]
+        span = f"frames {first}-{last}" if last > first else f"frame {first}"
+        why = (f"contact start: {span} {x[a] - x[a - 1]:+.2f} rad from frame {before}, "
+               f"{x[b + 1] - x[b]:+.2f} back by frame {after}")
+        for j in range(a, b + 1):
+            mark_not_ok(rows[ok[j]], why)
+    return sum(b - a + 1 for a, b in runs)
 
 # Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
 # to judge it: a short clip says little about how well its video reads.
