@@ -273,7 +273,8 @@ def test_flag_excursions_marks_a_run_whose_contact_start_goes_away_and_back():
     assert flag_excursions(rows, 0.5) == 7
     assert [r["frame"] for r in rows if not r["ok"]] == list(range(15, 23))
     d_away, d_back = bot[15] - bot[14], bot[23] - bot[22]
-    assert rows[15]["reason"] == f"contact start: frames 15-22 {d_away:+.2f} rad from frame 14, {d_back:+.2f} back by frame 23"
+    assert rows[15]["reason"] == (f"contact start: frames 15-22 {d_away:+.2f} rad from frame 14, "
+                                  f"{d_back:+.2f} back by frame 23")
     assert math.isnan(rows[18]["theta_con"]) and all(r["ok"] for r in rows if not 15 <= r["frame"] <= 22)
     # off; a creeping contact start with one step (a contact run forming at frame 12) stays
     assert flag_excursions(_angle_rows(tip, bot), 0.0) == 0
@@ -299,8 +300,10 @@ def test_extract_video_marks_a_contact_start_that_goes_away_and_back(tmp_path):
     steps = dataclasses.replace(STEPS, measure_frame=_contact_start_away)
     table, _ = extract_video(path, fakes.fake_config(), steps=steps)
     assert table.loc[~table["ok"], "frame"].tolist() == [8, 9, 10, 11]
-    assert table.loc[table["frame"] == 9, "reason"].item() == "contact start: frames 8-11 +1.52 rad from frame 7, -1.48 back by frame 12"
-    assert any(w.startswith("4 frame(s) marked not ok: their contact start went over 0.5 rad away") for w in table.attrs["warnings"])
+    assert table.loc[table["frame"] == 9, "reason"].item() == ("contact start: frames 8-11 +1.52 rad from frame 7, "
+                                                               "-1.48 back by frame 12")
+    assert any(w.startswith("4 frame(s) marked not ok: their contact start went over 0.5 rad away")
+               for w in table.attrs["warnings"])
     table, _ = extract_video(path, fakes.fake_config(excursion_rad=0.0), steps=steps)
     assert table["ok"].all()
 

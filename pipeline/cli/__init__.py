@@ -493,7 +493,8 @@ def _run_run(args: argparse.Namespace) -> int:
                "--scenario", str(args.scenario), "--seed", str(args.seed), "--bootstrap", str(args.bootstrap),
                "--recheck-every", str(args.recheck_every), "--register-frames", str(args.register_frames),
                "--glitch-rad", str(args.glitch_rad), "--kinematics-tol", str(args.kinematics_tol),
-               "--excursion-rad", str(args.excursion_rad), "--lone-reach", str(args.lone_reach), "--sparse-share", str(args.sparse_share)]
+               "--excursion-rad", str(args.excursion_rad), "--lone-reach", str(args.lone_reach),
+               "--sparse-share", str(args.sparse_share)]
     command += ["--fps", str(args.fps)] if args.fps else []
     command += ["--format", args.log_format] if args.log_format else []
     command += ["--calibration", args.calibration] if args.calibration else []

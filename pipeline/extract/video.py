@@ -563,6 +563,11 @@ def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.nd
     return out
 
 
+def _measured_in_order(rows: list[dict]) -> list[int]:
+    """Indices into ``rows`` (angles-table rows) of the measured ones, in frame order."""
+    return [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+
+
 def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int:
     """Mark isolated outliers in time as not ok, in place.
 
@@ -594,7 +599,7 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     int
         Frames marked.
     """
-    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+    ok = _measured_in_order(rows)
     if max_rad <= 0 or len(ok) < 2 * half_window + 1:
         return 0
     marked = np.zeros(len(ok), dtype=bool)
@@ -611,7 +616,6 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     for j in np.flatnonzero(marked):
         mark_not_ok(rows[ok[j]], why[j])
     return int(marked.sum())
-
 
 
 def contact_excursions(theta_bot: np.ndarray, max_rad: float) -> list[tuple[int, int]]:
@@ -678,7 +682,7 @@ def flag_excursions(rows: list[dict], max_rad: float) -> int:
     int
         Frames marked.
     """
-    ok = [i for i in sorted(range(len(rows)), key=lambda i: rows[i]["frame"]) if rows[i]["ok"]]
+    ok = _measured_in_order(rows)
     if max_rad <= 0 or len(ok) < 3:
         return 0
     x = np.array([float(rows[i]["theta_bot"]) for i in ok])
@@ -692,6 +696,7 @@ def flag_excursions(rows: list[dict], max_rad: float) -> int:
         for j in range(a, b + 1):
             mark_not_ok(rows[ok[j]], why)
     return sum(b - a + 1 for a, b in runs)
+
 
 # Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
 # to judge it: a short clip says little about how well its video reads.
