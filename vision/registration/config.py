@@ -127,6 +127,10 @@ class Registration:
     line_half_width_px : float
         Estimated half width (px) of the wall lines (> 0 dark lines, < 0 bright lines,
         about 0 for region boundaries).
+    line_offset_px : float
+        How far (px) the wall lines' centres lie outside the channel's edge (along the normal
+        pointing out of the channel): a bright band of the plate beside the edge rather than a
+        line on it. Fitted only for doubled walls (0 otherwise).
     edge_sigma_px : float
         Canny smoothing (px) used; :func:`check` uses the same.
     image_size : tuple of int
@@ -173,6 +177,7 @@ class Registration:
     parallax_px: tuple[float, float] = (0.0, 0.0)
     second_copy_contrast: float = float("nan")
     array_axis_offset_px: float = float("nan")
+    line_offset_px: float = 0.0
     _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def other_copy(self) -> "Registration":
@@ -194,8 +199,8 @@ class Registration:
     def to_dict(self) -> dict:
         """The registration JSON's keys (docs/file-formats.md) plus the fit statistics and the doubled walls (JSON-ready):
         ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
-        ``wall_parallax_y_px``, ``second_copy_contrast`` and ``array_axis_offset_px`` (NaN when
-        unknown)."""
+        ``wall_parallax_y_px``, ``second_copy_contrast``, ``array_axis_offset_px`` (NaN when
+        unknown) and ``line_offset_px``."""
         p = self.pose
         return {
             "centre_x_px": float(p.centre_x_px),
@@ -217,6 +222,7 @@ class Registration:
             "wall_parallax_y_px": float(self.parallax_px[1]),
             "second_copy_contrast": float(self.second_copy_contrast),
             "array_axis_offset_px": float(self.array_axis_offset_px),
+            "line_offset_px": float(self.line_offset_px),
         }
 
     @classmethod
@@ -249,6 +255,7 @@ class Registration:
             parallax_px=(num("wall_parallax_x_px", 0.0), num("wall_parallax_y_px", 0.0)),
             second_copy_contrast=num("second_copy_contrast"),
             array_axis_offset_px=num("array_axis_offset_px"),
+            line_offset_px=num("line_offset_px", 0.0),
         )
 
 

@@ -197,7 +197,7 @@ def register(
     offset = array_axis_offset(gray, pose, phantom)
     guide = (axis_normal(pose, phantom), offset) if off_the_axis(offset, pose.px_per_mm) else None
     doubled = doubled_walls(edges, layers, pose, half_width, model, cfg, b_per_rad, where_array, guide, gray)
-    shift, contrast = (0.0, 0.0), float("nan")
+    shift, contrast, line_offset = (0.0, 0.0), float("nan"), 0.0
     reasons = _fit_failures(fit, cfg)
     if doubled is not None:
         copies, contrast = doubled
@@ -207,13 +207,14 @@ def register(
             copies, contrast = copies.swapped(), 1.0 / contrast
         sub = model.subsample(cfg.model_spacing_px / copies.pose.px_per_mm)
         copies_fit = wall_fit_from(copies.pose, layers, sub, copies.half_width, cfg.inlier_tol_px,
-                                   np.asarray(copies.shift), copies.half_width2)
+                                   np.asarray(copies.shift), copies.half_width2, copies.offset)
         copies_reasons = _fit_failures(copies_fit, cfg)
         if copies_reasons and not reasons:  # the single fit stands where the copies' fails
             doubled, contrast = None, float("nan")
         else:
             pose, half_width, shift, fit, reasons = (copies.pose, copies.half_width, copies.shift, copies_fit,
                                                      copies_reasons)
+            line_offset = copies.offset
             if swapped:
                 offset = array_axis_offset(gray, pose, phantom)
     if reasons:
@@ -231,6 +232,7 @@ def register(
         parallax_px=shift,
         second_copy_contrast=contrast,
         array_axis_offset_px=offset,
+        line_offset_px=line_offset,
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), check_walls(pose, model)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 import cv2
@@ -21,7 +21,7 @@ from tympani.vision.registration.model import WallModel
 from tympani.vision.registration.poses import image_points, similarity_jacobian, updated
 from tympani.vision.registration.refine import FIELD_BLUR_VAR, profiles, refine_signed, solve_step, visible
 from tympani.vision.registration.valley import valley_pose, valley_scan
-from tympani.vision.registration.verify import COS_ALIGNED, nearest_pixels
+from tympani.vision.registration.verify import COS_ALIGNED, nearest_pixels, wall_fit_from
 
 
 # Two edges of the same polarity closer than this (px) show as one: a doubled region
@@ -67,6 +67,15 @@ _ALONG_COS = 0.85
 _MAX_FILLED = 0.3
 # How far (px) a guided start's move across the insertion axis may differ from the array's.
 _GUIDE_TOL_PX = 1.5
+# Lines fitted off the channel's edge (_Copies.offset) replace lines on it only when they lie beside
+# the edge: their inner edge no further than this (px) across it (bands drawn beside the edge:
+# -0.5 to +0.5 px; off-centre lines that straddle it, below) ...
+_MAX_STRADDLE_PX = 0.75
+# ... and their median wall-to-edge distance is at most this share of the lines on the edge's, with
+# no fewer walls on edges (an independent renderer's bright bands beside the edge: 0.17 px against
+# 1.03 px). Lines that straddle the edge off centre (inner edge 0.8-1.6 px across it) fit a few
+# renderers' walls better too, but move the scale either way by up to 1 %.
+_OFFSET_GAIN = 0.7
 # How much more of its expected edges (share) a guided second copy must find than the same
 # shift turned by 90, 180 and 270 degrees does (their median: what a random shift finds, about a
 # tenth on a harsh frame).
@@ -76,15 +85,17 @@ _MIN_GUIDED_EXCESS = 0.08
 @dataclass(frozen=True)
 class _Copies:
     """Doubled walls: the first copy's pose, its wall lines' half width (px, as
-    :attr:`Registration.line_half_width_px`), the second copy's image shift (px) and the
-    second copy's half width (px; None: the first's). The copies may look different: one a
-    region boundary (half width 0), the other a line, or dark lines beside bright ones (half
-    widths of opposite sign)."""
+    :attr:`Registration.line_half_width_px`), the second copy's image shift (px), the
+    second copy's half width (px; None: the first's) and how far (px) both copies' lines lie
+    outside the channel's edge (as :attr:`Registration.line_offset_px`). The copies may look
+    different: one a region boundary (half width 0), the other a line, or dark lines beside
+    bright ones (half widths of opposite sign)."""
 
     pose: CameraPose
     half_width: float
     shift: tuple[float, float]
     second_half_width: float | None = None
+    offset: float = 0.0
 
     @property
     def half_width2(self) -> float:
@@ -94,7 +105,7 @@ class _Copies:
     def swapped(self) -> "_Copies":
         """The same walls with the copies' roles exchanged."""
         dx, dy = self.shift
-        return _Copies(self.pose.moved((dx, dy)), self.half_width2, (-dx, -dy), self.half_width)
+        return _Copies(self.pose.moved((dx, dy)), self.half_width2, (-dx, -dy), self.half_width, self.offset)
 
 
 @dataclass(frozen=True)
@@ -134,7 +145,8 @@ class _Support:
 
 
 def _copy_offsets(
-    delta: np.ndarray, half_width: float, sign: float, lines: bool, half_width2: float | None = None
+    delta: np.ndarray, half_width: float, sign: float, lines: bool, half_width2: float | None = None,
+    offset: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Where one polarity class's edge of each copy is expected, and whether it shows.
 
@@ -150,6 +162,8 @@ def _copy_offsets(
         The class: +1 for edges whose gradient points out of the channel, -1 into it.
     lines : bool
         Whether the walls are lines (an edge of each class) or region boundaries (one).
+    offset : float
+        How far (px) the lines' centres lie outside the channel's edge (along the normal).
 
     Returns
     -------
@@ -164,8 +178,8 @@ def _copy_offsets(
         one edge, nearer the stronger copy.
     """
     h2 = half_width if half_width2 is None else half_width2
-    e1 = np.full(delta.shape, sign * half_width)
-    e2 = sign * h2 + delta
+    e1 = np.full(delta.shape, offset + sign * half_width)
+    e2 = offset + sign * h2 + delta
     if not lines:
         return e1, e2, np.ones(delta.shape, bool), np.abs(delta) > _MERGE_PX
     apart = np.abs(delta) > abs(half_width) + abs(h2) + _LINE_GAP_PX
@@ -196,7 +210,8 @@ def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_
 
 
 def _copy_edges(
-    delta: np.ndarray, half_width: float, classes: tuple[float, ...], half_width2: float | None = None
+    delta: np.ndarray, half_width: float, classes: tuple[float, ...], half_width2: float | None = None,
+    offset: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Every shown edge of doubled walls (:func:`_copy_offsets`), one row each.
 
@@ -209,6 +224,8 @@ def _copy_edges(
         None: the first's).
     classes : tuple of float
         Polarity classes shown (:func:`_wall_classes`).
+    offset : float
+        How far (px) the lines lie outside the channel's edge.
 
     Returns
     -------
@@ -227,7 +244,7 @@ def _copy_edges(
     lines = len(classes) == 2
     parts = []
     for sign in classes:
-        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines, half_width2)
+        e1, e2, shown1, shown2 = _copy_offsets(delta, half_width, sign, lines, half_width2, offset)
         for e, other, shown, other_shown, second in ((e1, e2, shown1, shown2, False), (e2, e1, shown2, shown1, True)):
             rows = np.flatnonzero(shown)
             parts.append((rows, np.full(len(rows), sign), np.full(len(rows), second), e[rows],
@@ -246,6 +263,7 @@ def _refine_copies(
     max_half_width: float,
     max_shift_px: float,
     tol_px: float = 0.05,
+    free_offset: bool = False,
 ) -> _Copies:
     """Polarity-aware refinement (as :func:`refine_signed`) of doubled walls: pose, each copy's
     line half width and the second copy's shift.
@@ -255,14 +273,16 @@ def _refine_copies(
     to the other copy's edge of the class (where that shows), and their Gaussian-weighted
     mean offset is one row of a weighted Gauss–Newton step (the second copy's rows also move
     the shift). The copies share one half width unless ``copies`` gives the second its own
-    (:attr:`_Copies.second_half_width`). Region boundaries (one class) keep their half widths.
+    (:attr:`_Copies.second_half_width`). With ``free_offset``, lines also move together off
+    the channel's edge (:attr:`_Copies.offset`: a bright band beside the edge, on the plate);
+    region boundaries (one class) keep their half widths and offset.
     """
     gain = 1.0 + FIELD_BLUR_VAR / sigma**2
     u = np.arange(-3.0 * sigma, 3.0 * sigma + 1e-9, 0.5)
     kernel = np.exp(-0.5 * (u / sigma) ** 2)
     lines = len(classes) == 2
     pose, shift = copies.pose, np.asarray(copies.shift, dtype=float)
-    half_width, half_width2 = copies.half_width, copies.half_width2
+    half_width, half_width2, offset = copies.half_width, copies.half_width2, copies.offset
     alike = copies.second_half_width is None
     scale0 = pose.px_per_mm
     for _ in range(iterations):
@@ -272,7 +292,7 @@ def _refine_copies(
             break
         pts, nrm = pts[vis], nrm[vis]
         base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
-        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes, half_width2)
+        point, sign, second, expected, other = _copy_edges(nrm @ shift, half_width, classes, half_width2, offset)
         n = nrm[point]
         prof = profiles(sfield, pts[point] + expected[:, None] * n, n, u)
         a = prof[..., 0] * n[:, 0:1]
@@ -287,7 +307,7 @@ def _refine_copies(
         ok = wsum > 1e-3
         if np.count_nonzero(ok) < 20:
             break
-        jac = np.zeros((np.count_nonzero(ok), 8))
+        jac = np.zeros((np.count_nonzero(ok), 9))
         jac[:, :4] = base[point[ok]]
         if lines and alike:
             jac[:, 4] = sign[ok]
@@ -295,6 +315,8 @@ def _refine_copies(
             jac[:, 4] = sign[ok] * ~second[ok]
             jac[:, 5] = sign[ok] * second[ok]
         jac[:, 6:8] = n[ok] * second[ok, None]
+        if lines and free_offset:
+            jac[:, 8] = 1.0
         step = solve_step(jac, gain * (a @ u)[ok] / wsum[ok], wsum[ok], max_px=(max_half_width + 3.0 * sigma) * gain)
         if step is None:
             break
@@ -302,6 +324,7 @@ def _refine_copies(
         half_width = min(max(half_width + float(step[4]), -max_half_width), max_half_width)
         half_width2 = half_width if alike else min(max(half_width2 + float(step[5]), -max_half_width), max_half_width)
         shift = shift + step[6:8]
+        offset = min(max(offset + float(step[8]), -max_half_width), max_half_width)
         length = float(np.hypot(*shift))
         if length > max_shift_px:
             shift *= max_shift_px / length
@@ -309,7 +332,7 @@ def _refine_copies(
             break
         if float(np.abs(step).sum()) < tol_px:
             break
-    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])), None if alike else half_width2)
+    return _Copies(pose, half_width, (float(shift[0]), float(shift[1])), None if alike else half_width2, offset)
 
 
 def _class_edge_distances(
@@ -350,7 +373,8 @@ def _copy_support(
     resolved = np.abs(delta) >= _RESOLVED_PX
     counts = np.zeros((len(classes), 4), int)
     for k, sign in enumerate(classes):
-        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2)
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2,
+                                               copies.offset)
         found1 = _class_edge_distances(layers, pts, nrm, e1, sign) <= tol_px
         found2 = _class_edge_distances(layers, pts, nrm, e2, sign) <= tol_px
         shown2 &= resolved
@@ -385,7 +409,8 @@ def _copy_contrast(
     t = np.array([-0.5, 0.0, 0.5])
     log_ratio, used = 0.0, False
     for sign in classes:
-        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2)
+        e1, e2, shown1, shown2 = _copy_offsets(delta, copies.half_width, sign, len(classes) == 2, copies.half_width2,
+                                               copies.offset)
         medians = []
         for e, shown in ((e1, shown1 & resolved), (e2, shown2 & resolved)):
             if np.count_nonzero(shown) < min_edges:
@@ -733,8 +758,7 @@ def _second_shows(copies: _Copies, support: _Support, layers: np.ndarray, model:
         return False
     dx, dy = copies.shift
     turned = [(-dy, dx), (-dx, -dy), (dy, -dx)]
-    rates = [_copy_support(_Copies(copies.pose, copies.half_width, t, copies.second_half_width), layers, model,
-                           classes).second_rate
+    rates = [_copy_support(replace(copies, shift=t), layers, model, classes).second_rate
              for t in turned]
     return support.second_rate >= float(np.median(rates)) + _MIN_GUIDED_EXCESS
 
@@ -798,7 +822,7 @@ def _filled_between(gray: np.ndarray, copies: _Copies, model: WallModel, reach_p
         return float("nan")
     delta = nrm @ shift
     far = -np.sign(delta) * (abs(copies.half_width) + reach_px)
-    t = np.stack([far, np.zeros_like(delta), 0.5 * delta], axis=1)  # beside, on the line, midway
+    t = copies.offset + np.stack([far, np.zeros_like(delta), 0.5 * delta], axis=1)  # beside, on the line, midway
     sx = (pts[:, 0:1] + t * nrm[:, 0:1]).astype(np.float32)
     sy = (pts[:, 1:2] + t * nrm[:, 1:2]).astype(np.float32)
     level = cv2.remap(np.asarray(gray, dtype=np.float32), sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -881,6 +905,27 @@ def doubled_walls(
     return None
 
 
+def _offset_if_better(copies: _Copies, sfield: np.ndarray, layers: np.ndarray, model: WallModel,
+                      classes: tuple[float, ...], cfg: RegistrationConfig, limits: dict[str, float]) -> _Copies:
+    """``copies`` (wall lines) refined again with the lines free to lie off the channel's edge
+    (:attr:`_Copies.offset`), where they then lie beside it (:data:`_MAX_STRADDLE_PX`) and fit
+    the walls of ``model`` clearly better (:data:`_OFFSET_GAIN`); else ``copies`` unchanged.
+    ``sfield`` is the signed gradient field and ``layers`` the edge layers the fit is measured
+    on."""
+    moved = _refine_copies(copies, sfield, model, classes, sigma=cfg.final_sigma_px, iterations=20, free_offset=True,
+                           **limits)
+
+    def fit(c: _Copies) -> tuple[float, float]:
+        f = wall_fit_from(c.pose, layers, model, c.half_width, cfg.inlier_tol_px, np.asarray(c.shift), c.half_width2,
+                          c.offset)
+        return f.residual_px, f.inlier_fraction
+
+    if not abs(moved.offset) >= max(abs(moved.half_width), abs(moved.half_width2)) - _MAX_STRADDLE_PX:
+        return copies
+    (res0, inl0), (res1, inl1) = fit(copies), fit(moved)
+    return moved if res1 <= _OFFSET_GAIN * res0 and inl1 >= inl0 else copies
+
+
 class _Verdict(Enum):
     """Why :func:`_confirmed` keeps no copies."""
 
@@ -901,11 +946,12 @@ def _confirmed(copies: _Copies, by_array: bool, edges: Edges, layers: np.ndarray
     copies = _refine_copies(copies, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
     delta = valley_scan(copies.pose, edges.pyramid, model, b_per_rad, np.asarray(copies.shift))
     if delta != 0.0:
-        turned = _Copies(valley_pose(copies.pose, delta, b_per_rad), copies.half_width, copies.shift,
-                         copies.second_half_width)
+        turned = replace(copies, pose=valley_pose(copies.pose, delta, b_per_rad))
         turned = _refine_copies(turned, edges.signed, fine, classes, sigma=cfg.final_sigma_px, iterations=10, **limits)
         if _copy_support(turned, layers, fine, classes).score > _copy_support(copies, layers, fine, classes).score:
             copies = turned
+    if len(classes) == 2:
+        copies = _offset_if_better(copies, edges.signed, layers, fine, classes, cfg, limits)
     support = _copy_support(copies, layers, fine, classes)
     least = max(_RESOLVED_PX, _MIN_PARALLAX_MM * copies.pose.px_per_mm)
     shows = _second_shows(copies, support, layers, fine, classes) if by_array else support.second_is_real

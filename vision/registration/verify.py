@@ -75,6 +75,7 @@ def _edge_distances(
     reach: float,
     second: np.ndarray | None = None,
     half_width2: float | None = None,
+    offset: float = 0.0,
 ) -> np.ndarray:
     """Distance (px) along each normal from a wall's expected edge to the nearest edge pixel.
 
@@ -84,10 +85,11 @@ def _edge_distances(
     wall itself. ``second`` (px, one per point), for doubled walls: the offset along the
     normal of the wall's second copy, whose edges are expected as far from it; an edge counts
     from the nearer copy, the second copy's at ``±half_width2`` (px; None: as the first's).
-    Walls without an edge within ``reach`` get ``reach``.
+    Lines whose centres lie ``offset`` (px) outside the channel's edge have their edges that much
+    further out. Walls without an edge within ``reach`` get ``reach``.
     """
     hw = 0.0 if half_width is None else max(abs(half_width), abs(half_width2 or 0.0))
-    lo, hi = -reach - hw, reach + hw
+    lo, hi = -reach - hw + min(offset, 0.0), reach + hw + max(offset, 0.0)
     if second is not None and len(second):
         lo, hi = lo + min(float(second.min()), 0.0), hi + max(float(second.max()), 0.0)
     t = np.arange(lo, hi + 1e-9, 0.5, dtype=np.float32)
@@ -97,24 +99,26 @@ def _edge_distances(
     # the pixels the normal passes through, and their exact offsets along it (the arrays are
     # n x len(t): the arithmetic goes in place where it can)
     ix, iy = nearest_pixels(px, nx, t, w), nearest_pixels(py, ny, t, h)
-    offset = ix - px  # float64
-    offset *= nx
+    along = ix - px  # float64
+    along *= nx
     along_y = iy - py
     along_y *= ny
-    offset += along_y
+    along += along_y
     prof = np.take(layers.reshape(-1, 2), iy * w + ix, axis=0)  # = layers[iy, ix], faster
     proj = prof[..., 0] * nx  # cos of the angle, 0 off edges
     proj += prof[..., 1] * ny
-    expected = 0.0 if half_width is None else np.where(proj > 0, np.float32(half_width), np.float32(-half_width))
-    dist = offset - expected
+    expected = np.float32(offset) + (0.0 if half_width is None else np.where(proj > 0, np.float32(half_width),
+                                                                            np.float32(-half_width)))
+    dist = along - expected
     if second is not None:
         dist2 = dist - second[:, None].astype(np.float32)
         if half_width is not None and half_width2 is not None:
             dist2 += expected
             dist2 -= np.where(proj > 0, np.float32(half_width2), np.float32(-half_width2))
+            dist2 -= np.float32(offset)
         dist = np.minimum(np.abs(dist), np.abs(dist2))
     np.abs(dist, out=dist)
-    stray = offset - t  # distance from the sample's own offset
+    stray = along - t  # distance from the sample's own offset
     np.abs(stray, out=stray)
     dist[(np.abs(proj) < COS_ALIGNED) | (stray > 1.0) | (dist > reach)] = np.inf
     return dist.min(axis=1)
@@ -182,16 +186,18 @@ def wall_fit_from(
     tol: float,
     parallax_px: np.ndarray | None = None,
     half_width2: float | None = None,
+    offset: float = 0.0,
 ) -> WallFit:
     """:class:`WallFit` of ``pose`` against a full-frame edge layer image; with
     ``parallax_px`` (px, image x and y), the walls' second copy that far away counts too, its
-    lines ``half_width2`` (px; None: ``half_width``) wide."""
+    lines ``half_width2`` (px; None: ``half_width``) wide; the lines' centres ``offset`` (px)
+    outside the channel's edge."""
     pts, nrm = image_points(pose, model)
     h, w = layers.shape[:2]
     vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
     reach = max(_REACH_PX, tol)
     second = None if parallax_px is None else nrm[vis] @ np.asarray(parallax_px, dtype=float)
-    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second, half_width2)
+    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second, half_width2, offset)
     sizes = np.bincount(model.group, minlength=4)
     return _summarise(dist, model.group[vis], len(pts), sizes, tol, model.spacing_mm, reach)
 
@@ -217,9 +223,11 @@ def _crop_fit(
     half_width: float,
     tol: float,
     parallax_px: np.ndarray | None = None,
+    offset: float = 0.0,
 ) -> WallFit:
     """:class:`WallFit` with Canny run only on the bounding box of the visible walls (and of
-    their second copy ``parallax_px`` away, px, when the walls are doubled).
+    their second copy ``parallax_px`` away, px, when the walls are doubled), their lines'
+    centres ``offset`` (px) outside the channel's edge.
 
     The crop is shrunk when the scale is large (distances are reported in full-resolution
     px), which keeps :func:`check` at a few milliseconds.
@@ -231,7 +239,7 @@ def _crop_fit(
         return WallFit(float("inf"), 0.0, 0.0, 0.0)
     pts, nrm, group = pts[vis], nrm[vis], group[vis]
     shift = np.zeros(2) if parallax_px is None else np.asarray(parallax_px, dtype=float)
-    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width) + np.abs(shift).max())) + 2
+    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width) + abs(offset) + np.abs(shift).max())) + 2
     x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int) - margin, 0)
     x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + margin + 1, [w, h])
     crop = frame[y0:y1, x0:x1]
@@ -247,7 +255,7 @@ def _crop_fit(
         local = (local + 0.5) * f - 0.5
     em = detect_edges(crop, sigma_px=max(sigma_px * f, 0.7))
     second = None if parallax_px is None else (nrm @ shift) * f
-    dist = _edge_distances(edge_layers(em), local, nrm, half_width * f, _REACH_PX * f, second) / f
+    dist = _edge_distances(edge_layers(em), local, nrm, half_width * f, _REACH_PX * f, second, offset=offset * f) / f
     n_total = int(sizes.sum())
     return _summarise(dist, group, n_total, sizes, tol, 0.0)
 
@@ -291,4 +299,5 @@ def wall_fit(
         hw if np.isfinite(hw) else 0.0,
         cfg.inlier_tol_px,
         np.asarray(registration.parallax_px, dtype=float) if registration.walls_doubled else None,
+        registration.line_offset_px if np.isfinite(registration.line_offset_px) else 0.0,
     )

@@ -30,6 +30,9 @@ class Appearance:
         Grey level of wall lines.
     wall_width_px : float
         Width (px) of wall lines.
+    wall_side : {"on", "outside"}
+        Wall lines centred on the channel's edge, or as a band that wide just outside it (the
+        plate's cut face catching the light).
     array_level : float
         Silicone body of the array (darker than the fluid).
     band_level : float
@@ -46,6 +49,7 @@ class Appearance:
     array_level: float = 70.0
     band_level: float = 230.0
     tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    wall_side: str = "on"
 
 
 def random_pose(

@@ -118,6 +118,16 @@ class Scene:
             polys.extend(list(quads))
         return self._coverage(polys)
 
+    def _wall_coverage(self, shift_px: np.ndarray) -> np.ndarray:
+        """Coverage of the wall lines moved by ``shift_px`` (px): centred on the channel's edge,
+        or (``Appearance.wall_side`` "outside") a band as wide just outside it."""
+        ap = self.appearance
+        lines = [line + shift_px for line in self._wall_lines_px()]
+        if ap.wall_side == "on":
+            return self._line_coverage(lines, ap.wall_width_px)
+        inside = self._coverage([self.pose.to_image(channel_polygon(self.phantom)) + shift_px])
+        return self._line_coverage(lines, 2.0 * ap.wall_width_px) * (1.0 - inside)
+
     def _wall_parallax(self) -> np.ndarray | None:
         """Image displacement (px) of the walls' second copy, or None without doubled walls."""
         nu = self.nuisance
@@ -141,12 +151,9 @@ class Scene:
                 moved = self._coverage([outline + shift])
                 img += 0.5 * contrast * (ap.fluid - ap.background) * (moved - inside)
         if ap.wall_style in ("lines", "both"):
-            lines = self._wall_lines_px()
-            if shift is not None:
-                cov = contrast * self._line_coverage([line + shift for line in lines], ap.wall_width_px)
+            for move, strength in ([] if shift is None else [(shift, contrast)]) + [(np.zeros(2), 1.0)]:
+                cov = strength * self._wall_coverage(move)
                 img = img * (1 - cov) + ap.wall_level * cov
-            cov = self._line_coverage(lines, ap.wall_width_px)
-            img = img * (1 - cov) + ap.wall_level * cov
         if self.nuisance.distractors:
             img = self._draw_distractors(img)
         return img
