@@ -97,7 +97,8 @@ def _add_video_check_options(group: Any) -> None:
                             "measured: nothing checks it (0: never; default 3)")
     group.add_argument("--sparse-share", type=share, default=0.5, metavar="S",
                        help="mark all frames of a video not ok when no more than this share of the frames between "
-                            "its first and last measured one is measured (0: never; default 0.5)")
+                            "its first and last measured one is measured, or when no more than 4 frames and this "
+                            "share of all its frames are (0: never; default 0.5)")
 
 
 def _extract_config(args: argparse.Namespace):

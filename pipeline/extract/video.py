@@ -701,9 +701,14 @@ def flag_excursions(rows: list[dict], max_rad: float) -> int:
 # Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
 # to judge it: a short clip says little about how well its video reads.
 SPARSE_MIN_SPAN = 10
+# ... but a video measured on no more than this many frames, at most the share of all its frames
+# with a registration, is judged whatever their span: too few to check one another (on the
+# evaluation renderers, 4 of the 15 frames of five such videos were grossly wrong, against 0.5 % of
+# the frames of the others).
+SPARSE_FEW = 4
 
 
-def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN) -> str:
+def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN, few: int = SPARSE_FEW) -> str:
     """Mark every measured frame not ok, in place, when few frames of the video were measured.
 
     A video whose frames mostly fail the measurement or its checks is one whose look defeats
@@ -724,7 +729,10 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
         registration (reason ``registration lost: ...``: the camera moved or the view was
         blocked) say nothing about how the video reads and are not counted.
     min_span : int
-        Videos whose measured frames span fewer frames are left alone.
+        Videos whose measured frames span fewer frames are left alone, ...
+    few : int
+        ... unless they are no more than this many and no more than ``max_share`` of all the
+        video's frames with a registration.
 
     Returns
     -------
@@ -735,13 +743,17 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
     if max_share <= 0 or not frames:
         return ""
     first, last = min(frames), max(frames)
-    lost = sum(1 for r in rows if first <= int(r["frame"]) <= last and str(r.get("reason", "")).startswith(
-        "registration lost"))
+    registered = [not str(r.get("reason", "")).startswith("registration lost") for r in rows]
+    lost = sum(1 for r, reg in zip(rows, registered) if first <= int(r["frame"]) <= last and not reg)
     span = last - first + 1 - lost
-    if span < min_span or len(frames) > max_share * span:
+    if span >= min_span and len(frames) <= max_share * span:
+        why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {first} to {last}"
+               f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
+    elif len(frames) <= few and len(frames) <= max_share * sum(registered):
+        why = (f"video mostly unread: only {len(frames)} of its {sum(registered)} frames"
+               f"{' with a registration' if sum(registered) < len(rows) else ''} measured, too few to check one another")
+    else:
         return ""
-    why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {first} to {last}"
-           f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
     for r in rows:
         if r["ok"]:
             mark_not_ok(r, why)
