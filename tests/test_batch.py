@@ -25,7 +25,7 @@ from tympani.pipeline.extract.batch import extract_batch, output_paths, process_
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
 from tympani.pipeline.extract.video import (ANGLE_COLUMNS, _window_medians, contact_excursions, extract_video,
-                                           flag_excursions, flag_glitches, flag_lone, flag_sparse)
+                                           flag_excursions, flag_few, flag_glitches, flag_lone, flag_sparse)
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -375,28 +375,28 @@ def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
                                          "measured (at most 50%)")
 
 
-def test_flag_sparse_marks_a_handful_of_frames_in_a_long_video():
-    """Four frames measured of twenty, spanning fewer than ten: too few to check one another, all
-    marked; five are left to the span rule (and left alone here), and so are four of eight (half
-    of the frames with a registration is the most marked; 4 of 8 is half: marked, 4 of 7 not)."""
+def test_flag_few_marks_a_handful_of_frames_in_a_long_video():
+    """Four frames measured of twenty, close together: too few to check one another, all marked;
+    five are left alone, and so are four of seven (half of the frames with a registration is the
+    most marked: 4 of 8 is half, marked; without a registration a frame does not count)."""
     def rows(measured, n=20, lost=()):
         return [dict(frame=i, ok=i in measured, theta_tip=1.0, theta_bot=0.5, theta_con=0.5,
                      reason="registration lost: the check failed" if i in lost else "") for i in range(n)]
 
     r = rows({3, 5, 6, 8})
-    assert flag_sparse(r, 0.5) == ("4 frame(s) marked not ok: video mostly unread: only 4 of its 20 frames "
+    assert flag_few(r, 0.5) == ("4 frame(s) marked not ok: video mostly unread: only 4 of its 20 frames "
                                    "measured, too few to check one another")
     assert not any(x["ok"] for x in r)
     for measured, n, lost, marked in (({3, 5, 6, 7, 8}, 20, (), False), ({1, 2, 3, 4}, 8, (), True),
                                       ({1, 2, 3, 4}, 7, (), False), ({1, 2, 3, 4}, 9, (0,), True),
                                       ({1, 2, 3, 4}, 9, (0, 8), False)):
         r = rows(measured, n, lost)
-        assert (flag_sparse(r, 0.5) != "") == marked, (measured, n, lost)
+        assert (flag_few(r, 0.5) != "") == marked, (measured, n, lost)
         assert sum(x["ok"] for x in r) == (0 if marked else len(measured))
     r = rows({3, 5}, 20, (0, 1))
-    assert flag_sparse(r, 0.5).endswith("only 2 of its 18 frames with a registration measured, too few to check "
+    assert flag_few(r, 0.5).endswith("only 2 of its 18 frames with a registration measured, too few to check "
                                         "one another")
-    assert flag_sparse(rows({3, 5}), 0.0) == ""
+    assert flag_few(rows({3, 5}), 0.0) == ""
 
 
 def test_extract_video_marks_a_mostly_unread_video_and_says_so(tmp_path):

@@ -119,10 +119,11 @@ class ExtractConfig:
     sparse_share : float
         When no more than this share (0-1) of the frames from a video's first measured frame to its
         last is measured (after the glitch and kinematics checks; spans of at least
-        :data:`~tympani.pipeline.extract.video.SPARSE_MIN_SPAN` frames; or at most
+        :data:`~tympani.pipeline.extract.video.SPARSE_MIN_SPAN` frames), all of them are marked not ok
+        (:func:`~tympani.pipeline.extract.video.flag_sparse`); so are they where they are at most
         :data:`~tympani.pipeline.extract.video.SPARSE_FEW` frames and this share of all the video's
-        frames), all of them are marked not ok (:func:`~tympani.pipeline.extract.video.flag_sparse`);
-        0 keeps every frame.
+        frames (:func:`~tympani.pipeline.extract.video.flag_few`, after the lone-frame check); 0
+        keeps every frame.
     calibration : vision.frames.LensCalibration or None
         The camera's lens. Frames are undistorted with it (:func:`tympani.vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole

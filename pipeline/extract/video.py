@@ -7,9 +7,10 @@ check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_gl
 frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`),
 measures again on the other copy of walls that show twice where the array touches that one
 (:func:`remeasure_on_other_copy`), marks runs of frames whose contact start goes away and comes
-back (:func:`flag_excursions`), marks the frames of a video mostly unread (:func:`flag_sparse`)
-and the measured frames with no other measured frame near (:func:`flag_lone`), and pools how
-wide the array looks (:func:`array_width`).
+back (:func:`flag_excursions`), marks the frames of a video mostly unread (:func:`flag_sparse`),
+the measured frames with no other measured frame near (:func:`flag_lone`) and those of a video
+measured on only a handful of frames (:func:`flag_few`), and pools how wide the array looks
+(:func:`array_width`).
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ __all__ = [
     "contact_excursions",
     "flag_excursions",
     "flag_sparse",
+    "flag_few",
     "flag_lone",
     "array_width",
 ]
@@ -150,6 +152,9 @@ def extract_video(
     if lone:
         notes.append(f"{lone} frame(s) marked not ok as unchecked (no other frame measured within {cfg.lone_reach} "
                      "frames)")
+    note = flag_few(rows, cfg.sparse_share)
+    if note:
+        notes.append(note)
     width = array_width(rows, cfg.array)
     if width["warning"]:
         notes.append(width["warning"])
@@ -701,14 +706,12 @@ def flag_excursions(rows: list[dict], max_rad: float) -> int:
 # Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
 # to judge it: a short clip says little about how well its video reads.
 SPARSE_MIN_SPAN = 10
-# ... but a video measured on no more than this many frames, at most the share of all its frames
-# with a registration, is judged whatever their span: too few to check one another (on the
-# evaluation renderers, 4 of the 15 frames of five such videos were grossly wrong, against 0.5 % of
-# the frames of the others).
+# A video measured on no more than this many frames (after every other check), at most the share of
+# all its frames with a registration, is judged whatever their span (:func:`flag_few`).
 SPARSE_FEW = 4
 
 
-def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN, few: int = SPARSE_FEW) -> str:
+def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN) -> str:
     """Mark every measured frame not ok, in place, when few frames of the video were measured.
 
     A video whose frames mostly fail the measurement or its checks is one whose look defeats
@@ -729,10 +732,7 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
         registration (reason ``registration lost: ...``: the camera moved or the view was
         blocked) say nothing about how the video reads and are not counted.
     min_span : int
-        Videos whose measured frames span fewer frames are left alone, ...
-    few : int
-        ... unless they are no more than this many and no more than ``max_share`` of all the
-        video's frames with a registration.
+        Videos whose measured frames span fewer frames are left alone.
 
     Returns
     -------
@@ -743,21 +743,59 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
     if max_share <= 0 or not frames:
         return ""
     first, last = min(frames), max(frames)
-    registered = [not str(r.get("reason", "")).startswith("registration lost") for r in rows]
-    lost = sum(1 for r, reg in zip(rows, registered) if first <= int(r["frame"]) <= last and not reg)
+    lost = sum(1 for r in rows if first <= int(r["frame"]) <= last and _lost(r))
     span = last - first + 1 - lost
-    if span >= min_span and len(frames) <= max_share * span:
-        why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {first} to {last}"
-               f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
-    elif len(frames) <= few and len(frames) <= max_share * sum(registered):
-        why = (f"video mostly unread: only {len(frames)} of its {sum(registered)} frames"
-               f"{' with a registration' if sum(registered) < len(rows) else ''} measured, too few to check one another")
-    else:
+    if span < min_span or len(frames) > max_share * span:
         return ""
+    why = (f"video mostly unread: {len(frames)} of the {span} frames from frame {first} to {last}"
+           f"{f' with a registration ({lost} without)' if lost else ''} measured (at most {max_share:.0%})")
+    return _mark_all(rows, why)
+
+
+def flag_few(rows: list[dict], max_share: float, few: int = SPARSE_FEW) -> str:
+    """Mark every measured frame not ok, in place, when the video was measured on only a handful
+    of frames, however close together (which :func:`flag_sparse` leaves alone): too few to check
+    one another (on the evaluation renderers, 4 of the 15 frames of the five videos measured on
+    2-4 of their 30-40 frames were grossly wrong, against 0.5 % of the others' frames).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, ``reason``, angles in rad), after every
+        other check; changed in place.
+    max_share : float
+        The measured frames must also be no more than this share (0-1) of all the video's frames
+        with a registration (see :func:`flag_sparse`); 0 or less does nothing.
+    few : int
+        Most measured frames marked.
+
+    Returns
+    -------
+    str
+        A warning naming the count, or "" when nothing was marked.
+    """
+    n = sum(1 for r in rows if r["ok"])
+    registered = sum(1 for r in rows if not _lost(r))
+    if max_share <= 0 or not 0 < n <= few or n > max_share * registered:
+        return ""
+    why = (f"video mostly unread: only {n} of its {registered} frames"
+           f"{' with a registration' if registered < len(rows) else ''} measured, too few to check one another")
+    return _mark_all(rows, why)
+
+
+def _lost(row: dict) -> bool:
+    """Whether a row had no registration (the camera moved or the view was blocked)."""
+    return str(row.get("reason", "")).startswith("registration lost")
+
+
+def _mark_all(rows: list[dict], why: str) -> str:
+    """Mark every measured row not ok with reason ``why``; the warning naming the count."""
+    n = 0
     for r in rows:
         if r["ok"]:
             mark_not_ok(r, why)
-    return f"{len(frames)} frame(s) marked not ok: {why}"
+            n += 1
+    return f"{n} frame(s) marked not ok: {why}"
 
 
 def measured_counts(path: str | os.PathLike) -> tuple[int, int] | None:
