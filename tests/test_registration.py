@@ -448,35 +448,42 @@ def test_doubled_walls_register_on_the_stronger_copy_and_say_so():
         assert reg.to_dict()["walls_doubled"] is True
 
 
-def test_doubled_bright_bands_beside_the_channel_edge_register_without_a_scale_bias():
-    """Walls drawn as a bright band 2-4 px wide just outside the channel's edge (the plate's cut
-    face catching the light) over fluid brighter than the plate, doubled 0.3-0.5 mm apart at
-    20-40 % strength; eight views at 18-40 px/mm. Lines centred on the edge are 1-2 px off it
-    here, and a fit that keeps them there settles up to 2.3 % off in scale (measured before the
-    lines could lie off the edge, seeds 0-7: scale error max 2.27 %, four of eight above 0.5 %).
-    Measured now: centre error max 0.16 px, scale error max 0.29 %; where the copies were
-    fitted off the edge (five of eight), the offset is the band's half width within 0.42 px."""
+def _bands_beside_the_edge(seed: int, doubled: bool) -> tuple[CameraPose, list[np.ndarray], Appearance]:
+    """Three frames of walls drawn as a bright band 2-4 px wide just outside the channel's edge
+    (the plate's cut face catching the light) over fluid brighter than the plate, at 18-40 px/mm;
+    ``doubled``: shown twice, 0.3-0.5 mm apart at 20-40 % strength."""
+    rng = np.random.default_rng(seed)
+    pose = random_pose(rng, 640, 480, px_per_mm=(18.0, 40.0))
+    background = float(rng.uniform(120, 190))
+    fluid = background + float(rng.uniform(15, 40))
+    appearance = Appearance(background=background, fluid=fluid, wall_style="both",
+                            wall_level=min(255.0, fluid + float(rng.uniform(15, 40))),
+                            wall_width_px=float(rng.uniform(2.0, 4.0)), array_level=float(rng.uniform(30, 80)),
+                            wall_side="outside")
+    parallax_mm, contrast = float(rng.uniform(0.3, 0.5)), float(rng.uniform(0.2, 0.4))
+    nuisance = replace(random_nuisance(rng, 0.3), doubled_wall_mm=parallax_mm if doubled else 0.0,
+                       doubled_wall_contrast=contrast)
+    scene = Scene(pose, 640, 480, appearance, nuisance, rng=rng)
+    return pose, [to_gray(scene.render(pose_at_depth(float(d)))) for d in rng.uniform(-1.0, 15.0, 3)], appearance
+
+
+@pytest.mark.parametrize("doubled", [False, True])
+def test_bright_bands_beside_the_channel_edge_register_without_a_scale_bias(doubled: bool):
+    """Walls drawn as a bright band just outside the channel's edge, single or doubled, eight
+    views each. Lines centred on the edge are 1-2 px off it here, and a fit that keeps them there
+    settles up to 2.6 % off in scale (measured before the lines could lie off the edge, seeds 0-7:
+    single, three of eight beyond 0.5 %, max 2.61 %; doubled, four, max 2.27 %). Measured now:
+    single, centre error max 0.05 px, scale error max 0.14 %; doubled, 0.16 px and 0.29 %. Where
+    the lines were fitted off the edge (single 7, doubled 5 of 8), the offset is the band's half
+    width within 0.42 px, and later frames are checked against the lines where they lie."""
     for seed in range(8):
-        rng = np.random.default_rng(seed)
-        pose = random_pose(rng, 640, 480, px_per_mm=(18.0, 40.0))
-        background = float(rng.uniform(120, 190))
-        fluid = background + float(rng.uniform(15, 40))
-        appearance = Appearance(background=background, fluid=fluid, wall_style="both",
-                                wall_level=min(255.0, fluid + float(rng.uniform(15, 40))),
-                                wall_width_px=float(rng.uniform(2.0, 4.0)), array_level=float(rng.uniform(30, 80)),
-                                wall_side="outside")
-        parallax_mm, contrast = float(rng.uniform(0.3, 0.5)), float(rng.uniform(0.2, 0.4))
-        nuisance = replace(random_nuisance(rng, 0.3), doubled_wall_mm=parallax_mm, doubled_wall_contrast=contrast)
-        scene = Scene(pose, 640, 480, appearance, nuisance, rng=rng)
-        frames = [to_gray(scene.render(pose_at_depth(float(d)))) for d in rng.uniform(-1.0, 15.0, 3)]
+        pose, frames, appearance = _bands_beside_the_edge(seed, doubled)
         reg = register(frames)
         centre, scale, _ = _errors(reg.pose, pose)
         assert reg.pose.mirrored == pose.mirrored
-        assert centre <= 0.25 and scale <= 0.4, (seed, centre, scale)
+        assert centre <= (0.25 if doubled else 0.15) and scale <= (0.4 if doubled else 0.25), (seed, centre, scale)
         if reg.line_offset_px != 0.0:
-            assert reg.walls_doubled, seed
             assert abs(reg.line_offset_px - 0.5 * appearance.wall_width_px) <= 0.5, (seed, reg.line_offset_px)
-            # later frames are checked against the lines where they lie
             assert check(frames[1], reg) < check(frames[1], replace(reg, line_offset_px=0.0)), seed
 
 

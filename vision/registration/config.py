@@ -129,8 +129,9 @@ class Registration:
         about 0 for region boundaries).
     line_offset_px : float
         How far (px) the wall lines' centres lie outside the channel's edge (along the normal
-        pointing out of the channel): a bright band of the plate beside the edge rather than a
-        line on it. Fitted only for doubled walls (0 otherwise).
+        pointing out of the channel): a band of the plate beside the edge (its cut face catching
+        the light) rather than a line on it; 0 unless lines beside the edge fit the walls clearly
+        better.
     edge_sigma_px : float
         Canny smoothing (px) used; :func:`check` uses the same.
     image_size : tuple of int

@@ -25,7 +25,7 @@ from tympani.vision.registration.config import (
     RegistrationError,
     search_range,
 )
-from tympani.vision.registration.doubled import doubled_walls
+from tympani.vision.registration.doubled import doubled_walls, lines_beside_the_edge
 from tympani.vision.registration.frames import (
     Edges,
     combine_frames,
@@ -216,6 +216,16 @@ def register(
                                                      copies_reasons)
             line_offset = copies.offset
             if swapped:
+                offset = array_axis_offset(gray, pose, phantom)
+    if doubled is None:
+        beside = lines_beside_the_edge(edges, layers, pose, half_width, model, cfg)
+        if beside is not None:
+            moved_pose, moved_hw, moved_offset = beside
+            sub = model.subsample(cfg.model_spacing_px / moved_pose.px_per_mm)
+            moved_fit = wall_fit_from(moved_pose, layers, sub, moved_hw, cfg.inlier_tol_px, offset=moved_offset)
+            moved_reasons = _fit_failures(moved_fit, cfg)
+            if not moved_reasons or reasons:
+                pose, half_width, line_offset, fit, reasons = moved_pose, moved_hw, moved_offset, moved_fit, moved_reasons
                 offset = array_axis_offset(gray, pose, phantom)
     if reasons:
         raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))

@@ -926,6 +926,23 @@ def _offset_if_better(copies: _Copies, sfield: np.ndarray, layers: np.ndarray, m
     return moved if res1 <= _OFFSET_GAIN * res0 and inl1 >= inl0 else copies
 
 
+def lines_beside_the_edge(edges: Edges, layers: np.ndarray, pose: CameraPose, half_width: float, model: WallModel,
+                          cfg: RegistrationConfig) -> tuple[CameraPose, float, float] | None:
+    """Single wall lines refit lying beside the channel's edge, where they are lines (an edge of
+    each polarity) and that fits clearly better (:func:`_offset_if_better`): the pose, the
+    lines' half width (px) and their offset (px, :attr:`Registration.line_offset_px`); None
+    where the lines stay on the edge."""
+    coarse = model.subsample(4.0 / pose.px_per_mm)
+    classes = _wall_classes(pose, edges.signed, coarse)
+    if len(classes) != 2:
+        return None
+    fine = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+    limits = dict(max_half_width=cfg.max_line_half_width_px, max_shift_px=0.0)
+    single = _Copies(pose, half_width, (0.0, 0.0))
+    moved = _offset_if_better(single, edges.signed, layers, fine, classes, cfg, limits)
+    return None if moved is single else (moved.pose, moved.half_width, moved.offset)
+
+
 class _Verdict(Enum):
     """Why :func:`_confirmed` keeps no copies."""
 
