@@ -225,7 +225,8 @@ def register(
             moved_fit = wall_fit_from(moved_pose, layers, sub, moved_hw, cfg.inlier_tol_px, offset=moved_offset)
             moved_reasons = _fit_failures(moved_fit, cfg)
             if not moved_reasons or reasons:
-                pose, half_width, line_offset, fit, reasons = moved_pose, moved_hw, moved_offset, moved_fit, moved_reasons
+                pose, half_width, line_offset = moved_pose, moved_hw, moved_offset
+                fit, reasons = moved_fit, moved_reasons
                 offset = array_axis_offset(gray, pose, phantom)
     if reasons:
         raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))
