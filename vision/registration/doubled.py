@@ -1,7 +1,9 @@
 """Doubled walls: every wall seen twice, the second copy shifted by one image vector (a
 thick plate's top and bottom edges seen at an angle). The copies are started from the shift
 surface of a single-copy fit or from how the lines' width varies with their direction, fitted
-together, and kept only when the second copy's edges are found."""
+together, and kept only when the second copy's edges are found. Wall lines, doubled or single
+(:func:`lines_beside_the_edge`), may also lie beside the channel's edge rather than on it: a
+band of the plate catching the light."""
 
 from __future__ import annotations
 
