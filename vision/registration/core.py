@@ -192,6 +192,13 @@ def register(
     def where_array(first: CameraPose, shift: tuple[float, float]) -> tuple[float, float]:
         return copy_offsets(gray, first, shift, phantom)
 
+    def checked(pose: CameraPose, half_width: float, line_offset: float, shift: np.ndarray | None = None,
+                half_width2: float | None = None) -> tuple[WallFit, list[str]]:
+        """A candidate's fit on the walls ``cfg.model_spacing_px`` apart, and why it fails."""
+        sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+        result = wall_fit_from(pose, layers, sub, half_width, cfg.inlier_tol_px, shift, half_width2, line_offset)
+        return result, _fit_failures(result, cfg)
+
     # the array outside the entry off this fit's axis: the other copy of doubled walls is sought
     # where the array lies
     offset = array_axis_offset(gray, pose, phantom)
@@ -205,10 +212,8 @@ def register(
         swapped = nearer_second_copy(copy_offset, delta, copies.pose.px_per_mm)
         if swapped:
             copies, contrast = copies.swapped(), 1.0 / contrast
-        sub = model.subsample(cfg.model_spacing_px / copies.pose.px_per_mm)
-        copies_fit = wall_fit_from(copies.pose, layers, sub, copies.half_width, cfg.inlier_tol_px,
-                                   np.asarray(copies.shift), copies.half_width2, copies.offset)
-        copies_reasons = _fit_failures(copies_fit, cfg)
+        copies_fit, copies_reasons = checked(copies.pose, copies.half_width, copies.offset,
+                                             np.asarray(copies.shift), copies.half_width2)
         if copies_reasons and not reasons:  # the single fit stands where the copies' fails
             doubled, contrast = None, float("nan")
         else:
@@ -221,10 +226,8 @@ def register(
         beside = lines_beside_the_edge(edges, layers, pose, half_width, model, cfg)
         if beside is not None:
             moved_pose, moved_hw, moved_offset = beside
-            sub = model.subsample(cfg.model_spacing_px / moved_pose.px_per_mm)
-            moved_fit = wall_fit_from(moved_pose, layers, sub, moved_hw, cfg.inlier_tol_px, offset=moved_offset)
-            moved_reasons = _fit_failures(moved_fit, cfg)
-            if not moved_reasons or reasons:
+            moved_fit, moved_reasons = checked(moved_pose, moved_hw, moved_offset)
+            if not moved_reasons or reasons:  # as the copies: not where it fails and the fit before passed
                 pose, half_width, line_offset = moved_pose, moved_hw, moved_offset
                 fit, reasons = moved_fit, moved_reasons
                 offset = array_axis_offset(gray, pose, phantom)

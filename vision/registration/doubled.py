@@ -916,14 +916,14 @@ def _offset_if_better(copies: _Copies, sfield: np.ndarray, layers: np.ndarray, m
     on."""
     moved = _refine_copies(copies, sfield, model, classes, sigma=cfg.final_sigma_px, iterations=20, free_offset=True,
                            **limits)
+    if not abs(moved.offset) >= max(abs(moved.half_width), abs(moved.half_width2)) - _MAX_STRADDLE_PX:
+        return copies
 
     def fit(c: _Copies) -> tuple[float, float]:
         f = wall_fit_from(c.pose, layers, model, c.half_width, cfg.inlier_tol_px, np.asarray(c.shift), c.half_width2,
                           c.offset)
         return f.residual_px, f.inlier_fraction
 
-    if not abs(moved.offset) >= max(abs(moved.half_width), abs(moved.half_width2)) - _MAX_STRADDLE_PX:
-        return copies
     (res0, inl0), (res1, inl1) = fit(copies), fit(moved)
     return moved if res1 <= _OFFSET_GAIN * res0 and inl1 >= inl0 else copies
 
