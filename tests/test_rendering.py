@@ -381,6 +381,34 @@ def test_shadows_only_darken_and_the_gripper_casts_one():
     assert np.median(ratio / (scene.gain[mask > 0])) < 0.8
 
 
+@pytest.mark.parametrize("direction_rad", [0.0, 2.0])
+def test_the_array_casts_its_own_shadow_beside_it(direction_rad):
+    """The array's shadow: the fluid one shadow offset beside the array's body (and not under
+    it, where the array is drawn) is darkened by up to the shadow's darkness (its edges are
+    softened by a third of the offset); off by default."""
+    st = pose_at_depth(12.0)
+    light = replace(Appearance(), array_level=0.8 * Appearance().fluid)
+    nu = Nuisance(array_shadow=0.4, array_shadow_mm=0.5, array_shadow_direction_rad=direction_rad)
+    scene = Scene(ZOOM, 640, 480, light, nu, rng=np.random.default_rng(3))
+    plain = _render(Nuisance(), st, appearance=light)
+    shaded = _grey(scene.render(st))
+    body, bands = scene.array_layers(st)
+    offset = np.round(scene._array_shadow_px).astype(int)
+    np.testing.assert_allclose(scene._array_shadow_px, 0.5 * ZOOM.px_per_mm * np.array(
+        [np.cos(direction_rad), np.sin(direction_rad)]))
+    # cores of the body moved by the offset that lie in open fluid (no array, no wall line)
+    core = cv2.erode((body > 0.99).astype(np.uint8), np.ones((5, 5), np.uint8))
+    moved = np.roll(core, (offset[1], offset[0]), axis=(0, 1)) > 0
+    far = cv2.dilate((body > 0).astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
+    fluid = moved & far & (np.abs(plain - light.fluid) < 2)
+    assert fluid.sum() > 200
+    ratio = shaded[fluid] / plain[fluid]  # 1 - 0.4 x the softened coverage: 0.63 along the middle
+    assert ratio.min() >= 0.59 and 0.6 <= np.median(ratio) <= 0.66, (ratio.min(), np.median(ratio))
+    inside = core > 0
+    assert np.median(np.abs(shaded[inside] - plain[inside])) < 1.0  # the array is drawn over its shadow
+    assert Nuisance().array_shadow == 0.0 and np.array_equal(plain, _render(Nuisance(), st, appearance=light))
+
+
 @pytest.mark.parametrize("depth_mm", [4.0, 15.0])
 def test_gripper_hides_part_of_the_straight_array_outside_the_entry(depth_mm):
     pose = SIDE

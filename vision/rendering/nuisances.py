@@ -80,6 +80,16 @@ class Nuisance:
     gripper_overlap_mm : float
         Length (mm) of the array's straight part, next to its base, that the gripper's jaw
         hides; the jaw stops 0.5 mm short of the entry channel (outside the entry).
+    array_shadow : float
+        Darkness (0–0.9) of the array's own shadow on the channel floor under it: the array's
+        outline moved by ``array_shadow_mm`` and softened, darkening what lies there (fluid,
+        wall lines, bubbles) but drawn under the array. With a light array (little darker
+        than the fluid) the shadow beside it is darker than the array itself.
+    array_shadow_mm : float
+        How far (mm) the shadow lies from the array (a lamp at a slant; 0.2–0.6 mm is typical).
+    array_shadow_direction_rad : float or None
+        Image direction (rad, ``atan2(dy, dx)`` in pixel coordinates, y down) of the shadow's
+        offset; None draws it at random.
     """
 
     noise_sigma: float = 0.0
@@ -100,6 +110,9 @@ class Nuisance:
     motion_blur_px: float = 0.0
     shadows: float = 0.0
     gripper_overlap_mm: float = 0.0
+    array_shadow: float = 0.0
+    array_shadow_mm: float = 0.4
+    array_shadow_direction_rad: float | None = None
 
     def __post_init__(self) -> None:
         if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
@@ -110,10 +123,11 @@ class Nuisance:
             raise ValueError("bubble_radius_mm must be > 0 mm or None")
         if not 0.0 <= self.doubled_wall_contrast <= 1.0:
             raise ValueError("doubled_wall_contrast must be 0–1")
-        if not 0.0 <= self.shadows <= 0.9:
-            raise ValueError("shadows must be 0–0.9")
+        for name in ("shadows", "array_shadow"):
+            if not 0.0 <= getattr(self, name) <= 0.9:
+                raise ValueError(f"{name} must be 0–0.9")
         for name in ("bubbles", "plate_glints", "doubled_wall_mm", "glints", "motion_blur_px",
-                     "gripper_overlap_mm", "bubble_drift_mm_s"):
+                     "gripper_overlap_mm", "bubble_drift_mm_s", "array_shadow_mm"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must not be negative")
 

@@ -81,6 +81,7 @@ class Scene:
         self._glint = self._new_band_glints() if nu.glints > 0 else None
         self._plate_glint = self._plate_glints() if nu.plate_glints > 0 else None
         self._grip_shadow_px = self._gripper_shadow_offset() if nu.shadows > 0 and nu.distractors else None
+        self._array_shadow_px = self._array_shadow_offset() if nu.array_shadow > 0 else None
 
     # -- static part
     def _coverage(self, polygons_px: list[np.ndarray], bbox: tuple[int, int, int, int] | None = None) -> np.ndarray:
@@ -287,6 +288,29 @@ class Scene:
         """Image offset (px) of the gripper's shadow: 0.8–2.5 mm in a random direction."""
         a = self.rng.uniform(0, 2 * np.pi)
         return self.rng.uniform(0.8, 2.5) * self.pose.px_per_mm * np.array([np.cos(a), np.sin(a)])
+
+    def _array_shadow_offset(self) -> np.ndarray:
+        """Image offset (px) of the array's own shadow: ``array_shadow_mm`` in the direction
+        ``array_shadow_direction_rad`` (random when None)."""
+        nu = self.nuisance
+        a = nu.array_shadow_direction_rad
+        a = float(self.rng.uniform(0, 2 * np.pi)) if a is None else float(a)
+        return nu.array_shadow_mm * self.pose.px_per_mm * np.array([np.cos(a), np.sin(a)])
+
+    def _array_shadow(self, body: np.ndarray, bbox: tuple[int, int, int, int]) -> np.ndarray:
+        """Multiplicative field (0–1) of the array's shadow: its body's coverage ``body`` (drawn
+        within ``bbox``) moved by the shadow's offset and softened by a third of a pixel per
+        pixel of offset (at least 0.7 px)."""
+        dx, dy = (float(v) for v in self._array_shadow_px)
+        sigma = max(0.7, np.hypot(dx, dy) / 3.0)
+        x0, y0, x1, y1 = bbox
+        pad = int(np.ceil(abs(dx) + abs(dy) + 3 * sigma)) + 1
+        x0, y0 = max(x0 - pad, 0), max(y0 - pad, 0)
+        x1, y1 = min(x1 + pad, self.width), min(y1 + pad, self.height)
+        moved = cv2.warpAffine(body[y0:y1, x0:x1], np.float32([[1, 0, dx], [0, 1, dy]]), (x1 - x0, y1 - y0))
+        out = np.ones_like(body)
+        out[y0:y1, x0:x1] = 1.0 - self.nuisance.array_shadow * np.clip(cv2.GaussianBlur(moved, (0, 0), sigma), 0, 1)
+        return out
 
     def _draw_gripper(self, img: np.ndarray, state: ArrayState) -> np.ndarray:
         """``img`` with the gripper's soft shadow and the gripper (smeared when it moves) on it."""
@@ -498,6 +522,8 @@ class Scene:
             body, bands, glint = self._motion_blurred(state, bbox, [body, bands, glint])
         # bubbles lie under the array: they may sit against it but never hide any of it
         img = self._with_bubbles(state, time_s) if nu.has_bubbles else self.background
+        if self._array_shadow_px is not None and bbox is not None:  # on the floor, under the array
+            img = img * self._array_shadow(body, bbox)
         img = img * (1 - body) + ap.array_level * body
         img = img * (1 - bands) + ap.band_level * bands
         if glint is not None:
