@@ -32,7 +32,8 @@ from tympani.vision.geometry import ElectrodeArray
 class CentreLine:
     """Stage 3: the tip (fractional station ``tip_f`` from ``lo``, point ``tip_mm``), and per
     station the centre-line point ``line`` (mm), the gap (mm), the radius (mm) and whether
-    the edges were used (``measured``)."""
+    the edges were used (``measured``); ``dark_excess_mm``, how much wider (mm) than the array
+    the dark is over the last ``tip_width_mm`` before the tip (:func:`_dark_excess`)."""
 
     tip_f: float
     tip_mm: np.ndarray
@@ -41,6 +42,7 @@ class CentreLine:
     radius: np.ndarray
     measured: np.ndarray
     width_ratio: float  # seen width over modelled width, median where both edges show (NaN: < 10 such)
+    dark_excess_mm: float
 
 
 def _half_widths(s: np.ndarray, stretch: np.ndarray, array: ElectrodeArray) -> tuple[np.ndarray, np.ndarray]:
@@ -60,6 +62,40 @@ def _width_ratio(v_in: np.ndarray, v_out: np.ndarray, both: np.ndarray, width: n
     ratio = np.where(both, (v_out - v_in) / np.where(both, width, 1.0), 0.0)
     median = row_quantiles(rg.pad(ratio, 0.0), rg.pad(both, False), 0.5)
     return np.where(rg.count(both) >= 10, median, np.nan)
+
+
+def _dark_excess(v_in: np.ndarray, v_out: np.ndarray, ok_in: np.ndarray, ok_out: np.ndarray, half: np.ndarray,
+                 width: np.ndarray, near_tip: np.ndarray, rg: Ragged, min_count: int, noise_mm: float) -> np.ndarray:
+    """Per frame, how much wider (mm) than the array the dark is near its tip: the median over
+    the stations ``near_tip`` whose inner edge shows of the dark's width (to the outer edge, or
+    to the outer wall where that edge is not found: the dark may reach it) less the array's.
+
+    The centre line puts the array against the dark's inner edge; where the dark is wider (a
+    shadow beside the array, darker than the array itself, or a dark line joined to it), the
+    array may as well lie against its outer edge, nearer the wall by this much.
+
+    Parameters
+    ----------
+    v_in, v_out : ndarray
+        Inner and outer edge offsets (mm) at the frames' stations (ragged ``rg``).
+    ok_in, ok_out : ndarray of bool
+        Where each edge was seen on the array's body.
+    half : ndarray
+        The channel's half-width (mm) at each station.
+    width : ndarray
+        The array's width across the channel (mm) at each station.
+    near_tip : ndarray of bool
+        The stations near the tip to use.
+    rg : Ragged
+        The frames' stations.
+    min_count : int
+        Fewest such stations with the inner edge: a frame with fewer gets 0.
+    noise_mm : float
+        Excess (mm) within the edges' noise: a smaller one is 0.
+    """
+    use = near_tip & ok_in
+    excess = row_quantiles(rg.pad(np.where(ok_out, v_out, half) - v_in - width, 0.0), rg.pad(use, False), 0.5)
+    return np.where((rg.count(use) >= min_count) & (excess > noise_mm), excess, 0.0)
 
 
 def _centre_offsets(
@@ -238,6 +274,8 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     if not len(keep):
         return out
     width_ratio = _width_ratio(v_in, v_out, both, width, rg)
+    excess = _dark_excess(v_in, v_out, ok_in, ok_out, half, width, before & (s >= plan.r_tip_mm) & stretch_tip, rg,
+                          min_count, 2.0 / ppm)
     sub, part = rg.subset(keep)
     ok = measured[sub]
     (centre, gap), _ = smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
@@ -246,5 +284,5 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
         a = slice(s0, s0 + m_b)
         out[int(live[b])] = CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a],
-                                        float(width_ratio[b]))
+                                        float(width_ratio[b]), float(excess[b]))
     return out

@@ -44,7 +44,10 @@ class MeasureConfig:
         cannot be told at this resolution. A frame read as not touching whose tip would touch
         is one of these.
     contact_swing_rad : float
-        See ``gap_resolution_px``.
+        See ``gap_resolution_px``. Also the largest move (rad) of the contact start allowed
+        were the array against the outer edge of a dark wider than itself near the tip (a
+        shadow beside it), rather than against its inner edge; beyond it the frame is refused
+        ("contact unclear: the dark at the tip is ... wider than the array").
     residual_resolution, max_gap_resolution_px : float
         The gaps are told apart no more finely than the registration fits the walls: the
         resolution is raised to ``residual_resolution`` times the registration's residual (px),

@@ -260,6 +260,13 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # it touches cannot be told at this resolution
     c2, j0, j1, f2 = contact_run(gaps, tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
     swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
+    # and with the array against the outer edge of a dark wider than itself near the tip: the
+    # gaps less the dark's excess width; where its contact run starts far from this one, which
+    # side of that dark the array takes decides the contact
+    excess = np.array([c.dark_excess_mm for _, c, _ in staged])
+    c3, k0, k1, f3 = contact_run(gaps - excess[cl.row], tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl,
+                                 cfg)
+    flush = np.abs(np.where(c3, theta[k0] + f3 * (theta[k1] - theta[k0]), theta_tip) - theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
     v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
     measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
@@ -286,9 +293,10 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     results = []
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
                bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist(),
-               other_copy.tolist(), contact.tolist(), blind.tolist())
+               other_copy.tolist(), contact.tolist(), blind.tolist(), np.where(entry, 0.0, flush).tolist(),
+               excess.tolist())
     for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b, other_b, \
-            contact_b, blind_b in rows:
+            contact_b, blind_b, flush_b, excess_b in rows:
         extras["depth_mm"] = depth_b
         extras["other_copy_mm"] = other_b
         if crossed_b:
@@ -303,6 +311,10 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
         if swing_b > cfg.contact_swing_rad:
             results.append(failure(f"contact start unclear: {_up(swing_b)} rad further with the gaps {plan.gap_resolution_px:.2g} "
                                    "px narrower", **extras))
+            continue
+        if flush_b > cfg.contact_swing_rad:
+            results.append(failure(f"contact unclear: the dark at the tip is {excess_b:.2f} mm wider than the array",
+                                   **extras))
             continue
         results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
                                         cl_b, outline_b, gaps_b, extras))
