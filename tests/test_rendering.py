@@ -468,6 +468,7 @@ def test_random_harsh_nuisance_meets_every_kind():
     assert any(0.1 <= n.doubled_wall_mm <= 0.5 for n in draws) and any(n.doubled_wall_mm == 0 for n in draws)
     for name in ("glints", "plate_glints", "motion_blur_px", "shadows", "gripper_overlap_mm"):
         assert any(getattr(n, name) > 0 for n in draws), name
+    assert any(n.array_shadow > 0 for n in draws) and any(n.array_shadow == 0 for n in draws)
     assert min(n.jpeg_quality for n in draws if n.jpeg_quality) <= 20
     mild = [random_harsh_nuisance(rng, 0.3) for _ in range(20)]
     assert np.mean([n.motion_blur_px for n in mild]) < np.mean([n.motion_blur_px for n in draws])

@@ -156,8 +156,8 @@ def random_harsh_nuisance(rng: np.random.Generator, strength: float) -> Nuisance
 
     On top of :func:`random_nuisance`'s kinds (drawn from wider ranges, JPEG quality down to
     15 at full strength): free and tip bubbles, doubled walls, band and plate glints, motion
-    blur, shadows and a gripper that hides part of the straight array. Each kind is present
-    at random, so a set of draws meets every combination.
+    blur, shadows (the array's own in half the draws) and a gripper that hides part of the
+    straight array. Each kind is present at random, so a set of draws meets every combination.
 
     Parameters
     ----------
@@ -195,6 +195,9 @@ def random_harsh_nuisance(rng: np.random.Generator, strength: float) -> Nuisance
         motion_blur_px=float(u(0.0, 8.0) * s),
         shadows=float(u(0.2, 0.7) * s),
         gripper_overlap_mm=float(u(0.0, 6.0) * s),
+        array_shadow=float(u(0.2, 0.6) * s) if u() < 0.5 else 0.0,
+        array_shadow_mm=float(u(0.2, 0.6)),
+        array_shadow_direction_rad=None,
     )
 
 
