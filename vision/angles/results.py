@@ -258,14 +258,14 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # the contact run with the tolerance raised by the gaps' resolution: where it starts much
     # further back, the array runs along the wall at about the tolerance and where (or whether)
     # it touches cannot be told at this resolution
-    c2, j0, j1, f2 = contact_run(gaps, tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl, cfg)
+    loose = tol + plan.gap_resolution_px / float(plan.pose.px_per_mm)
+    c2, j0, j1, f2 = contact_run(gaps, loose, cl, cfg)
     swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
     # and with the array against the outer edge of a dark wider than itself near the tip: the
     # gaps less the dark's excess width; where its contact run starts far from this one, which
     # side of that dark the array takes decides the contact
     excess = np.array([c.dark_excess_mm for _, c, _ in staged])
-    c3, k0, k1, f3 = contact_run(gaps - excess[cl.row], tol + plan.gap_resolution_px / float(plan.pose.px_per_mm), cl,
-                                 cfg)
+    c3, k0, k1, f3 = contact_run(gaps - excess[cl.row], loose, cl, cfg)
     flush = np.abs(np.where(c3, theta[k0] + f3 * (theta[k1] - theta[k0]), theta_tip) - theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
     v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
