@@ -254,19 +254,23 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     tol = contact_tolerance(gaps, cl, cfg)
     contact, i0, i1, frac = contact_run(gaps, tol, cl, cfg)
     theta_tip = theta[cl.start]
-    theta_bot = np.where(contact, theta[i0] + frac * (theta[i1] - theta[i0]), theta_tip)
+
+    def start_angle(touching: np.ndarray, a: np.ndarray, b: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Each frame's contact start angle (rad) from :func:`contact_run`'s result; the tip's
+        where the tip does not touch."""
+        return np.where(touching, theta[a] + f * (theta[b] - theta[a]), theta_tip)
+
+    theta_bot = start_angle(contact, i0, i1, frac)
     # the contact run with the tolerance raised by the gaps' resolution: where it starts much
     # further back, the array runs along the wall at about the tolerance and where (or whether)
     # it touches cannot be told at this resolution
     loose = tol + plan.gap_resolution_px / float(plan.pose.px_per_mm)
-    c2, j0, j1, f2 = contact_run(gaps, loose, cl, cfg)
-    swing = theta_bot - np.minimum(np.where(c2, theta[j0] + f2 * (theta[j1] - theta[j0]), theta_tip), theta_bot)
+    swing = theta_bot - np.minimum(start_angle(*contact_run(gaps, loose, cl, cfg)), theta_bot)
     # and with the array against the outer edge of a dark wider than itself near the tip: the
     # gaps less the dark's excess width; where its contact run starts far from this one, which
     # side of that dark the array takes decides the contact
     excess = np.array([c.dark_excess_mm for _, c, _ in staged])
-    c3, k0, k1, f3 = contact_run(gaps - excess[cl.row], loose, cl, cfg)
-    flush = np.abs(np.where(c3, theta[k0] + f3 * (theta[k1] - theta[k0]), theta_tip) - theta_bot)
+    flush = np.abs(start_angle(*contact_run(gaps - excess[cl.row], loose, cl, cfg)) - theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
     v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
     measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
