@@ -472,29 +472,47 @@ def _drawn_radius(pose: CameraPose, line: np.ndarray, radius: float, thickness: 
     return 0.5 * float(np.median(cover.sum(axis=1))) * step_px / pose.px_per_mm
 
 
+def _channel_image(pose: CameraPose) -> np.ndarray:
+    """Grey background (110), the channel's fluid (190) and dark wall lines (80), drawn at 8x
+    and shrunk (float32)."""
+    big = np.full((H * SUPER, W * SUPER), 110, np.uint8)
+    cv2.fillPoly(big, [_px(pose, channel_polygon(DEFAULT_PHANTOM))], 190, lineType=cv2.LINE_8, shift=4)
+    for wall in (DEFAULT_PHANTOM.outer_wall.points, DEFAULT_PHANTOM.inner_wall.points):
+        cv2.polylines(big, [_px(pose, wall[::5])], False, 80, thickness=SUPER, lineType=cv2.LINE_8, shift=4)
+    return _shrink(big).astype(np.float32)
+
+
+def _normals(line: np.ndarray) -> np.ndarray:
+    """Unit normals (mm) of a polyline (mm), turned +90 degrees from its direction."""
+    nrm = np.gradient(line, axis=0)
+    return np.stack([-nrm[:, 1], nrm[:, 0]], axis=1) / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+def _band_cover(pose: CameraPose, line: np.ndarray, radius: float, starts_mm: np.ndarray,
+                length_mm: float) -> np.ndarray:
+    """Coverage (0-1) of bands ``length_mm`` long starting ``starts_mm`` (mm) from the tip
+    ``line[0]``, as wide as the array (``radius``, mm), drawn at 8x and shrunk."""
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))])
+    nrm = _normals(line)
+    bands = np.zeros((H * SUPER, W * SUPER), np.uint8)
+    for first in starts_mm:
+        sel = (s >= first) & (s <= first + length_mm)
+        if sel.sum() >= 2:
+            quad = np.vstack([line[sel] + radius * nrm[sel], (line[sel] - radius * nrm[sel])[::-1]])
+            cv2.fillPoly(bands, [_px(pose, quad)], 255, lineType=cv2.LINE_8, shift=4)
+    return _shrink(bands).astype(np.float32) / 255.0
+
+
 def _draw_independent(
     pose: CameraPose, line: np.ndarray, radius: float, thickness: int, rng: np.random.Generator
 ) -> np.ndarray:
     """A frame drawn with OpenCV at 8x and shrunk: grey background, brighter fluid in the
     channel with dark wall lines, the array as one thick dark polyline (round ends) with grey
     bands, then blur and noise. ``radius`` (mm) is what ``thickness`` draws."""
-    big = np.full((H * SUPER, W * SUPER), 110, np.uint8)
-    cv2.fillPoly(big, [_px(pose, channel_polygon(DEFAULT_PHANTOM))], 190, lineType=cv2.LINE_8, shift=4)
-    for wall in (DEFAULT_PHANTOM.outer_wall.points, DEFAULT_PHANTOM.inner_wall.points):
-        cv2.polylines(big, [_px(pose, wall[::5])], False, 80, thickness=SUPER, lineType=cv2.LINE_8, shift=4)
-    img = _shrink(big).astype(np.float32)
+    img = _channel_image(pose)
     body = _array_mask(pose, line, radius, thickness)
     img = img * (1 - body) + 55.0 * body
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))])
-    nrm = np.gradient(line, axis=0)
-    nrm = np.stack([-nrm[:, 1], nrm[:, 0]], axis=1) / np.linalg.norm(nrm, axis=1, keepdims=True)
-    bands = np.zeros((H * SUPER, W * SUPER), np.uint8)
-    for first in 0.45 + 0.8 * np.arange(12):  # grey 0.25 mm bands every 0.8 mm
-        sel = (s >= first) & (s <= first + 0.25)
-        if sel.sum() >= 2:
-            quad = np.vstack([line[sel] + radius * nrm[sel], (line[sel] - radius * nrm[sel])[::-1]])
-            cv2.fillPoly(bands, [_px(pose, quad)], 255, lineType=cv2.LINE_8, shift=4)
-    band = _shrink(bands).astype(np.float32) / 255.0
+    band = _band_cover(pose, line, radius, 0.45 + 0.8 * np.arange(12), 0.25)  # grey 0.25 mm bands every 0.8 mm
     img = img * (1 - band) + 150.0 * band
     noisy = cv2.GaussianBlur(img, (0, 0), 0.7) + rng.normal(0.0, 3.0, img.shape)
     return np.clip(noisy, 0, 255).astype(np.uint8)
@@ -995,6 +1013,61 @@ def test_an_array_with_its_own_darker_shadow_beside_it_is_not_read_clear_of_the_
         plain += [(m.ok, abs(m.theta_con - state.truth.theta_con)) for state, m in _shadowed_views(seed, shadow=False)]
     assert not wrong, wrong
     assert all(ok for ok, _ in plain) and max(err for _, err in plain) <= 0.1, plain
+
+
+def _draw_with_shadow_apart(pose: CameraPose, line: np.ndarray, radius: float, thickness: int,
+                            rng: np.random.Generator, shadow: bool) -> np.ndarray:
+    """A frame drawn here (as :func:`_draw_independent`): a light array (0.85 of the fluid's
+    level) with bright bands (235, 0.4 mm every 1 mm from 0.3 mm) along ``line``, and, if
+    ``shadow``, its shadow (the fluid darkened by 45 %) as wide as the array, beside it towards
+    the inner wall, 0.05 mm apart."""
+    img = _channel_image(pose)
+    if shadow:
+        nrm = _normals(line)
+        inward = np.sign(np.dot(nrm[0], -line[0])) * nrm  # towards the spiral's centre
+        img *= 1.0 - 0.45 * _array_mask(pose, line + (2.0 * radius + 0.05) * inward, radius, thickness)
+    body = _array_mask(pose, line, radius, thickness)
+    img = img * (1 - body) + 0.85 * 190.0 * body
+    band = _band_cover(pose, line, radius, 0.3 + 1.0 * np.arange(11), 0.4)
+    img = img * (1 - band) + 235.0 * band
+    noisy = cv2.GaussianBlur(img, (0, 0), 0.7) + rng.normal(0.0, 3.0, img.shape)
+    return np.clip(noisy, 0, 255).astype(np.uint8)
+
+
+def test_a_shadow_apart_from_the_array_with_the_bands_beside_it_is_refused() -> None:
+    """A light array (0.45 mm wide here, so that it and its shadow fit in the channel) against
+    the outer wall, its bright bands 0.4 mm every 1 mm, and its shadow as wide as it, darker,
+    0.05 mm apart towards the centre: the dark run follows the shadow and reads the array clear
+    of the wall. Five (theta_tip, theta_bot) at 20 and 30 px/mm, drawn here. Measured: without
+    the check all 10 frames are measured with theta_con off by 0.93-1.16 rad; with it all 10
+    are refused ("the array's bands show beside the dark run"). The same frames without the
+    shadow: all 10 measured, theta_tip within 0.017 rad and theta_con within 0.049 rad."""
+    off = MeasureConfig(shadow_correlation=np.inf)
+    fooled, refused, plain = 0, 0, []
+    for k, (theta_tip, theta_bot) in enumerate([(1.8, 1.0), (2.0, 1.2), (2.2, 1.3), (2.4, 1.5), (2.6, 1.6)]):
+        rng = np.random.default_rng(100 + k)
+        for ppm in (20.0, 30.0):
+            pose = random_pose(rng, W, H, px_per_mm=(ppm, ppm))
+            thickness = int(round(0.45 * pose.px_per_mm * SUPER))
+            radius = 0.22
+            for _ in range(2):  # the centre line rides the wall with the radius that is drawn
+                spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
+                radius = _drawn_radius(pose, line, radius, thickness)
+            spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
+            truth = contact_angles(spiral, np.full(len(spiral), radius), DEFAULT_PHANTOM)
+            array = ElectrodeArray(tip_diameter_mm=2 * radius, base_diameter_mm=2 * radius)
+            shadowed = _draw_with_shadow_apart(pose, line, radius, thickness, rng, shadow=True)
+            m = measure_frame(shadowed, _reg(pose), array=array)
+            refused += (not m.ok) and m.reason.startswith("the array's bands show beside the dark run")
+            before = measure_frame(shadowed, _reg(pose), array=array, cfg=off)
+            fooled += before.ok and abs(before.theta_con - truth.theta_con) > 0.5
+            m = measure_frame(_draw_with_shadow_apart(pose, line, radius, thickness, rng, shadow=False), _reg(pose),
+                              array=array)
+            plain.append((m.ok, abs(m.theta_tip - truth.theta_tip), abs(m.theta_con - truth.theta_con)))
+    assert refused == 10, refused
+    assert fooled == 10, fooled  # the scenario is the failure the check answers
+    ok, tip, con = np.array(plain).T
+    assert ok.all() and tip.max() <= 0.03 and con.max() <= 0.07, plain
 
 
 def test_a_dark_stretch_past_the_arrays_edges_is_refused() -> None:

@@ -48,7 +48,8 @@ Each frame then costs two cv2.remap calls and mostly 1-D work along the channel:
    half-level crossing along the centre line, whose offset is extrapolated from the body;
    gap = half the channel width - centre offset - radius, smoothed with local straight-line
    fits (unbiased next to bands and the tip, where only one side has data) and carried across
-   bands and the last of the tip cap;
+   bands and the last of the tip cap; a run with the array's bands beside it rather than on
+   it is the array's shadow, and is refused (:mod:`.shadow`);
 4. angles (:mod:`.results`): the points' angles by :func:`~.definitions.spiral_angle` (the
    arithmetic of :func:`~tympani.vision.geometry.point_angle`) and :func:`contact_angles`' rule
    on the measured centre line with the measured gaps, allowing for noise blips and a bias of
@@ -60,7 +61,7 @@ leading axis, stages 2-4 on the frames' stations laid end to end (:mod:`.ragged`
 result does not depend on the others in its batch.
 
 Modules, in the order of the data flow: :mod:`.definitions`, :mod:`.config`, :mod:`.plan`,
-:mod:`.survey`, :mod:`.bubbles`, :mod:`.edges`, :mod:`.centreline`, :mod:`.results`,
+:mod:`.survey`, :mod:`.bubbles`, :mod:`.edges`, :mod:`.shadow`, :mod:`.centreline`, :mod:`.results`,
 :mod:`.measure` (the entry points); :mod:`.arrays` and :mod:`.ragged` hold the array helpers
 the stages share.
 """

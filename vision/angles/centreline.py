@@ -25,7 +25,12 @@ from tympani.vision.angles.ragged import (
     smooth_ragged,
     tip_crossing_ragged,
 )
+from tympani.vision.angles.shadow import bands_beside
 from tympani.vision.geometry import ElectrodeArray
+
+
+# Why a frame whose dark run has the array's bands beside it is not measured (:mod:`.shadow`).
+_BESIDE = "the array's bands show beside the dark run, not on it (its shadow followed?)"
 
 
 @dataclass(frozen=True)
@@ -282,6 +287,9 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     line = point[sub] + centre[:, None] * normal[sub]
     radius = radius[sub]
     for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
+        if bands_beside(edges[int(live[b])], float(tip_f[b]), plan):
+            out[int(live[b])] = _BESIDE
+            continue
         a = slice(s0, s0 + m_b)
         out[int(live[b])] = CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a],
                                         float(width_ratio[b]), float(excess[b]))

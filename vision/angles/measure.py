@@ -71,8 +71,10 @@ def measure_frame(
         ``reason``: ``"array not in channel"`` (no array at the entry's outer end: not
         inserted yet, absent, hidden, or too faint), ``"tip out of view"``, ``"entry out of
         view"``, ``"array edges not found"``, bright bands going on past the dark run's end
-        (the array lighter past a shadow's edge, see ``MeasureConfig.resume_mm``), ``"bad
-        frame: ..."`` or ``"measurement failed: ..."``. ``extras['time_ms']`` is the time
+        (the array lighter past a shadow's edge, see ``MeasureConfig.resume_mm``), the array's
+        bands beside the dark run rather than on it (the run its shadow, see
+        :mod:`tympani.vision.angles.shadow`), ``"bad frame: ..."`` or ``"measurement failed:
+        ..."``. ``extras['time_ms']`` is the time
         spent on the frame (ms), without the strip's preparation when a plan is passed;
         ``timings`` splits it by stage (s).
 
