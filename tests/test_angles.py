@@ -518,6 +518,22 @@ def _draw_independent(
     return np.clip(noisy, 0, 255).astype(np.uint8)
 
 
+def _wall_riding_array(rng: np.random.Generator, theta_tip: float, theta_bot: float, ppm: float,
+                       width_mm: float) -> tuple[CameraPose, int, float, np.ndarray, object, ElectrodeArray]:
+    """A random pose at ``ppm`` px/mm and an array ``width_mm`` wide (as OpenCV draws it at 8x)
+    on the outer wall from ``theta_tip`` to ``theta_bot`` (:func:`_independent_centreline`):
+    (pose, line thickness at 8x, drawn radius (mm), whole centre line (mm), truth angles, array)."""
+    pose = random_pose(rng, W, H, px_per_mm=(ppm, ppm))
+    thickness = int(round(width_mm * pose.px_per_mm * SUPER))
+    radius = 0.5 * width_mm
+    for _ in range(2):  # the centre line rides the wall with the radius that is drawn
+        spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
+        radius = _drawn_radius(pose, line, radius, thickness)
+    spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
+    truth = contact_angles(spiral, np.full(len(spiral), radius), DEFAULT_PHANTOM)
+    return pose, thickness, radius, line, truth, ElectrodeArray(tip_diameter_mm=2 * radius, base_diameter_mm=2 * radius)
+
+
 @pytest.fixture(scope="module")
 def independent() -> list[tuple[float, float]]:
     """Errors (theta_tip, theta_bot) on 8 frames drawn here: 4 (theta_tip, theta_bot) at 15 and
@@ -526,15 +542,7 @@ def independent() -> list[tuple[float, float]]:
     for theta_tip, theta_bot in [(2.2, 1.8), (3.3, 2.2), (4.5, 2.6), (5.6, 3.4)]:
         rng = np.random.default_rng(int(theta_tip * 10))
         for ppm in (15.0, 35.0):
-            pose = random_pose(rng, W, H, px_per_mm=(ppm, ppm))
-            thickness = int(round(0.7 * pose.px_per_mm * SUPER))
-            radius = 0.35
-            for _ in range(2):  # the centre line rides the wall with the radius that is drawn
-                spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
-                radius = _drawn_radius(pose, line, radius, thickness)
-            spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
-            truth = contact_angles(spiral, np.full(len(spiral), radius), DEFAULT_PHANTOM)
-            array = ElectrodeArray(tip_diameter_mm=2 * radius, base_diameter_mm=2 * radius)
+            pose, thickness, radius, line, truth, array = _wall_riding_array(rng, theta_tip, theta_bot, ppm, 0.7)
             m = measure_frame(_draw_independent(pose, line, radius, thickness, rng), _reg(pose), array=array)
             assert m.ok, m.reason
             errors.append((abs(m.theta_tip - truth.theta_tip), abs(m.theta_bot - truth.theta_bot)))
@@ -1047,15 +1055,7 @@ def test_a_shadow_apart_from_the_array_with_the_bands_beside_it_is_refused() -> 
     for k, (theta_tip, theta_bot) in enumerate([(1.8, 1.0), (2.0, 1.2), (2.2, 1.3), (2.4, 1.5), (2.6, 1.6)]):
         rng = np.random.default_rng(100 + k)
         for ppm in (20.0, 30.0):
-            pose = random_pose(rng, W, H, px_per_mm=(ppm, ppm))
-            thickness = int(round(0.45 * pose.px_per_mm * SUPER))
-            radius = 0.22
-            for _ in range(2):  # the centre line rides the wall with the radius that is drawn
-                spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
-                radius = _drawn_radius(pose, line, radius, thickness)
-            spiral, line = _independent_centreline(theta_tip, theta_bot, radius, depart_rad=0.5)
-            truth = contact_angles(spiral, np.full(len(spiral), radius), DEFAULT_PHANTOM)
-            array = ElectrodeArray(tip_diameter_mm=2 * radius, base_diameter_mm=2 * radius)
+            pose, thickness, radius, line, truth, array = _wall_riding_array(rng, theta_tip, theta_bot, ppm, 0.45)
             shadowed = _draw_with_shadow_apart(pose, line, radius, thickness, rng, shadow=True)
             m = measure_frame(shadowed, _reg(pose), array=array)
             refused += (not m.ok) and m.reason.startswith("the array's bands show beside the dark run")
