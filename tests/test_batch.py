@@ -830,3 +830,21 @@ def test_array_width_pools_the_measured_frames():
     assert array_width([{"ok": True, "width_ratio": 1.09}] * 10, DEFAULT_ARRAY)["warning"] == ""  # within 10 %
     empty = array_width([], DEFAULT_ARRAY)
     assert empty["frames"] == 0 and math.isnan(empty["median"]) and empty["warning"] == ""
+
+
+def test_a_long_reason_is_broken_into_lines_that_fit_the_frame():
+    """A reason wider than the frame is written in full over several lines, none running past
+    the frame's right edge (it was cut at 80 characters and at the edge)."""
+    from tympani.vision.drawing import angle_lines, draw_text
+
+    reason = "the array's bands show beside the dark run, not on it (its shadow followed?)"
+    lines = angle_lines(fakes.FakeMeasurement(ok=False, reason=reason))
+    for width in (320, 640, 800):
+        image = np.full((width * 3 // 4, width, 3), 100, np.uint8)
+        draw_text(image, lines)
+        lit = np.flatnonzero((image[:, :, 0] > 180).any(axis=0))
+        assert lit[-1] < width - 2, width  # the text ends inside the frame
+        box = np.flatnonzero((image[:, 8, 0] < 60))  # the darkened box's rows, at its left margin
+        four = draw_text(np.full_like(image, 100), ["tip", "bot", "con", "not ok"])
+        if width == 320:  # no room for the reason on one line: more lines, not a cut
+            assert box.size > np.count_nonzero(four[:, 8, 0] < 60)

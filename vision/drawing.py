@@ -12,7 +12,7 @@ measured against.
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -257,13 +257,28 @@ def draw_labels(image: np.ndarray, labels_px: Mapping[str, Sequence[float] | Non
     return image
 
 
+def _wrap(line: str, fits: Callable[[str], bool]) -> list[str]:
+    """``line`` broken at spaces into pieces that ``fits`` (a word too long stays whole)."""
+    pieces: list[str] = []
+    for word in line.split(" "):
+        if pieces and fits(pieces[-1] + " " + word):
+            pieces[-1] += " " + word
+        else:
+            pieces.append(word)
+    return pieces or [""]
+
+
 def draw_text(image: np.ndarray, lines: Iterable[str], *, origin_px: tuple[int, int] = (6, 6)) -> np.ndarray:
-    """Write lines of text in place at the top left (``origin_px``, px), on a dark box."""
+    """Write lines of text in place at the top left (``origin_px``, px), on a dark box; a line
+    wider than the image is broken at spaces."""
     lines = [str(line) for line in lines]
     if not lines:
         return image
     s = max(_scale(image), _MIN_TEXT_SCALE)  # below this the text is a few px tall: unreadable
     font, scale, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.45 * s, 1
+    room = image.shape[1] - origin_px[0] - int(8 * s)
+    lines = [piece for line in lines
+             for piece in _wrap(line, lambda text: cv2.getTextSize(text, font, scale, thick)[0][0] <= room)]
     sizes = [cv2.getTextSize(line, font, scale, thick) for line in lines]
     step = max(h + b for (_, h), b in sizes) + int(4 * s)
     width = max(w for (w, _), _ in sizes)
@@ -299,7 +314,7 @@ def angle_lines(measurement: Any) -> list[str]:
         f"con {_angle(getattr(measurement, 'theta_con', None))}",
     ]
     if not getattr(measurement, "ok", False):
-        lines.append(f"not ok: {getattr(measurement, 'reason', '') or 'no reason given'}"[:80])
+        lines.append(f"not ok: {getattr(measurement, 'reason', '') or 'no reason given'}"[:240])
     return lines
 
 
