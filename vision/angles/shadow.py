@@ -17,9 +17,14 @@ from tympani.vision.angles.config import MeasureConfig
 from tympani.vision.angles.edges import Edges
 from tympani.vision.angles.plan import MeasurePlan
 
+# Where the lane beside the run starts, past its outer edge (a share of the array's width).
+_LANE_FROM = 0.1
+# Fewest stations of a lane that say anything about a period.
+_LEAST = 20
+
 
 def periodicity(signal: np.ndarray, step_mm: float, lags_mm: tuple[float, float], detrend_mm: float,
-                least: int = 20) -> tuple[float, float]:
+                least: int = _LEAST) -> tuple[float, float]:
     """How periodic a signal along the channel is, and how strongly it varies.
 
     Parameters
@@ -80,7 +85,8 @@ def lanes(rel: np.ndarray, offset_mm: np.ndarray, inner_mm: np.ndarray, outer_mm
     clear_mm : ndarray, shape (n,)
         Largest offset (mm) clear of the outer wall.
     width_mm : float
-        The array's width (mm): the lane runs from a tenth of it to all of it past the outer edge.
+        The array's width (mm): the lane runs from a tenth of it (``_LANE_FROM``) to all of it
+        past the outer edge.
 
     Returns
     -------
@@ -88,10 +94,16 @@ def lanes(rel: np.ndarray, offset_mm: np.ndarray, inner_mm: np.ndarray, outer_mm
         NaN where the array's edges are not known, or the lane holds fewer than two samples.
     """
     on_array = (offset_mm >= inner_mm) & (offset_mm <= outer_mm)
-    lane = (offset_mm > outer_mm + 0.1 * width_mm) & (offset_mm <= np.minimum(outer_mm + width_mm, clear_mm))
+    lane = (offset_mm > outer_mm + _LANE_FROM * width_mm) & (offset_mm <= np.minimum(outer_mm + width_mm, clear_mm))
     on = np.where(on_array.any(axis=0), np.where(on_array, rel, -np.inf).max(axis=0), np.nan)
     beside = np.where(lane.sum(axis=0) >= 2, np.where(lane, rel, -np.inf).max(axis=0), np.nan)
     return on, beside
+
+
+def _banded(corr: float, spread: float, cfg: MeasureConfig) -> bool:
+    """Whether a lane of this periodicity and spread (:func:`periodicity`) could be a train of
+    bands (``cfg.shadow_correlation``, ``cfg.shadow_spread``); NaN could not."""
+    return bool(corr >= cfg.shadow_correlation and spread >= cfg.shadow_spread)
 
 
 def band_signals(edges: Edges, tip_f: float, plan: MeasurePlan) -> tuple[float, float, float]:
@@ -116,7 +128,7 @@ def band_signals(edges: Edges, tip_f: float, plan: MeasurePlan) -> tuple[float, 
     step = plan.step_mm
     j0 = max(0, int(tip_f) - int(cfg.shadow_length_mm / step))
     j1 = min(max(0, int(tip_f) - int(cfg.shadow_cap_mm / step)), edges.n)  # the tip may lie past the edges
-    if j1 - j0 < 20:
+    if j1 - j0 < _LEAST:
         return np.nan, np.nan, np.nan
     sl = slice(j0, j1)
     half = plan.half_mm[edges.lo + j0: edges.lo + j1]
@@ -129,14 +141,14 @@ def band_signals(edges: Edges, tip_f: float, plan: MeasurePlan) -> tuple[float, 
     # show in the lane too: the stations near them are left out
     k = int(np.ceil(cfg.shadow_band_margin_mm / step))
     near_band = np.convolve(~np.isfinite(outer), np.ones(2 * k + 1), mode="same") > 0
-    room = clear - (outer + 0.1 * width) >= float(plan.u[1] - plan.u[0]) * half  # room for two offsets
-    if np.count_nonzero(room & ~near_band) < 20:  # too little of the lane (the array against the wall)
+    room = clear - (outer + _LANE_FROM * width) >= float(plan.u[1] - plan.u[0]) * half  # room for two offsets
+    if np.count_nonzero(room & ~near_band) < _LEAST:  # too little of the lane (the array against the wall)
         return np.nan, np.nan, np.nan
     rel = (edges.fine[:, sl] - edges.fluid[sl].astype(np.float32)) / edges.contrast[sl].astype(np.float32)
     on, beside = lanes(rel, plan.u[:, None] * half[None, :], inner, outer, clear, width)
     beside[near_band] = np.nan
     corr, spread = periodicity(beside, step, cfg.shadow_period_mm, cfg.shadow_detrend_mm)
-    if not (corr >= cfg.shadow_correlation and spread >= cfg.shadow_spread):  # not the bands: done
+    if not _banded(corr, spread, cfg):  # not the bands: done
         return corr, spread, np.nan
     return corr, spread, periodicity(on, step, cfg.shadow_period_mm, cfg.shadow_detrend_mm)[1]
 
@@ -156,7 +168,5 @@ def bands_beside(edges: Edges, tip_f: float, plan: MeasurePlan) -> bool:
     plan : MeasurePlan
         The video's plan.
     """
-    cfg = plan.cfg
     corr, spread, spread_on = band_signals(edges, tip_f, plan)
-    return bool(corr >= cfg.shadow_correlation and spread >= cfg.shadow_spread
-                and spread >= cfg.shadow_ratio * spread_on)
+    return _banded(corr, spread, plan.cfg) and bool(spread >= plan.cfg.shadow_ratio * spread_on)
