@@ -297,10 +297,10 @@ class Scene:
         a = float(self.rng.uniform(0, 2 * np.pi)) if a is None else float(a)
         return nu.array_shadow_mm * self.pose.px_per_mm * np.array([np.cos(a), np.sin(a)])
 
-    def _array_shadow(self, body: np.ndarray, bbox: tuple[int, int, int, int]) -> np.ndarray:
-        """Multiplicative field (0–1) of the array's shadow: its body's coverage ``body`` (drawn
+    def _with_array_shadow(self, img: np.ndarray, body: np.ndarray, bbox: tuple[int, int, int, int]) -> np.ndarray:
+        """A copy of ``img`` darkened by the array's shadow: its body's coverage ``body`` (drawn
         within ``bbox``) moved by the shadow's offset and softened by a third of a pixel per
-        pixel of offset (at least 0.7 px)."""
+        pixel of offset (at least 0.7 px); only the region the shadow can reach is touched."""
         dx, dy = (float(v) for v in self._array_shadow_px)
         sigma = max(0.7, np.hypot(dx, dy) / 3.0)
         x0, y0, x1, y1 = bbox
@@ -308,8 +308,8 @@ class Scene:
         x0, y0 = max(x0 - pad, 0), max(y0 - pad, 0)
         x1, y1 = min(x1 + pad, self.width), min(y1 + pad, self.height)
         moved = cv2.warpAffine(body[y0:y1, x0:x1], np.float32([[1, 0, dx], [0, 1, dy]]), (x1 - x0, y1 - y0))
-        out = np.ones_like(body)
-        out[y0:y1, x0:x1] = 1.0 - self.nuisance.array_shadow * np.clip(cv2.GaussianBlur(moved, (0, 0), sigma), 0, 1)
+        out = img.copy()  # img may be the shared background
+        out[y0:y1, x0:x1] *= 1.0 - self.nuisance.array_shadow * np.clip(cv2.GaussianBlur(moved, (0, 0), sigma), 0, 1)
         return out
 
     def _draw_gripper(self, img: np.ndarray, state: ArrayState) -> np.ndarray:
@@ -523,7 +523,7 @@ class Scene:
         # bubbles lie under the array: they may sit against it but never hide any of it
         img = self._with_bubbles(state, time_s) if nu.has_bubbles else self.background
         if self._array_shadow_px is not None and bbox is not None:  # on the floor, under the array
-            img = img * self._array_shadow(body, bbox)
+            img = self._with_array_shadow(img, body, bbox)
         img = img * (1 - body) + ap.array_level * body
         img = img * (1 - bands) + ap.band_level * bands
         if glint is not None:
