@@ -727,16 +727,17 @@ def test_a_bubble_at_or_ahead_of_the_tip_is_not_array(gap_mm: float) -> None:
     assert max(bot_err) <= 0.2, bot_err
 
 
-def _bubble_touching_the_tip(line_rows: slice | None) -> tuple[np.ndarray, int, float, float]:
+def _bubble_touching_the_tip(line_rows: slice | None, centre_row: int = 30) -> tuple[np.ndarray, int, float, float]:
     """Coverage (0 fluid, 1 array; offsets x stations, 0.026 x 0.034 mm) of an array 0.6 mm
-    wide running into the rim (0.08 mm) of a bubble (bright interior 0.72 mm across) that
-    begins at station 120, with a dark line along ``line_rows`` from the bubble's far side to
-    the window's end. Returns the coverage, the rim's first station and the two spacings (mm)."""
+    wide running into the rim (0.08 mm) of a bubble (bright interior 0.72 mm across, centred on
+    ``centre_row``; the array's track is row 30) that begins at station 120, with a dark line
+    along ``line_rows`` from the bubble's far side to the window's end. Returns the coverage,
+    the rim's first station and the two spacings (mm)."""
     step, offset, tip = 0.034, 0.026, 120
     cover = np.zeros((51, 200))
     cover[19:42, : tip + 2] = 1.0  # the array, rows 19-41 around its track at 30, into the rim
     sx, sy = np.meshgrid(np.arange(200) * step, np.arange(51) * offset)
-    r = np.hypot(sx - (tip * step + 0.44), sy - 30 * offset)
+    r = np.hypot(sx - (tip * step + 0.44), sy - centre_row * offset)
     cover[(r >= 0.36) & (r <= 0.44)] = 1.0
     cover[r < 0.36] = -0.2
     if line_rows is not None:
@@ -763,6 +764,52 @@ def test_a_bubble_against_the_tip_takes_off_no_more_than_its_rim(line_rows: slic
     rim = int(np.ceil(cfg.bubble_rim_mm / step))
     assert stop is not None and tip - rim <= stop <= tip + 2, (end, stop)
     assert tip - 1 - rim <= end <= tip + 1, (end, stop)
+
+
+@pytest.mark.parametrize("centre_row", [30, 24, 16])
+def test_a_bubble_against_the_tip_beside_its_track_still_ends_it(centre_row: int) -> None:
+    """An array riding a wall pushes a bubble whose middle lies across the channel from the
+    array's track (centred 0, 0.16 or 0.36 mm off it; in the last its interior ends a row short
+    of the track): a bubble whose interior comes within an eighth of the array's diameter of the
+    track lies on the array's path, so the array ends at the bubble's rim. Before, only a bubble
+    whose interior spanned the track itself was looked at, and the tip was read through the rim
+    to the bubble's far side
+    (station 145, 0.85 mm too far; renderer M's 0.44 mm bubble against a wall-riding tip:
+    theta_tip 0.25 rad too far and the contact missed, five frames of one video)."""
+    from tympani.vision.angles.bubbles import bubble_end
+
+    cfg = MeasureConfig()
+    cover, tip, step, offset = _bubble_touching_the_tip(None, centre_row)
+    dark = cover.max(axis=0) >= cfg.dark_level
+    seed = np.full(cover.shape[1], 30)
+    inside = np.zeros(51, dtype=bool)
+    inside[1:50] = True
+    end, stop = bubble_end(cover, dark, seed, inside, int(np.flatnonzero(dark)[-1]), step, offset, 0.6, cfg)
+    rim = int(np.ceil(cfg.bubble_rim_mm / step))
+    assert stop is not None and tip - rim <= stop <= tip + 2, (end, stop)
+    assert tip - 1 - rim <= end <= tip + 1, (end, stop)
+
+
+def test_a_bubble_beside_the_tip_off_its_path_is_not_taken() -> None:
+    """A bubble beside the array's last 0.7 mm whose interior ends 0.15 mm (a quarter of the
+    array's diameter) short of the array's track is not one the array pushes, though its rim
+    lies over the array's edge: the array's end stays where the dark run ends."""
+    from tympani.vision.angles.bubbles import bubble_end
+
+    cfg = MeasureConfig()
+    step, offset, tip = 0.034, 0.026, 120
+    cover = np.zeros((61, 200))
+    cover[38:61, : tip + 1] = 1.0  # the array along a wall, its track at row 49
+    sx, sy = np.meshgrid(np.arange(200) * step, np.arange(61) * offset)
+    r = np.hypot(sx - (tip * step - 0.3), sy - 31 * offset)  # a bubble beside the tip, 0.8 mm across
+    cover[(r >= 0.32) & (r <= 0.40)] = 1.0
+    cover[r < 0.32] = -0.2
+    dark = cover[38:].max(axis=0) >= cfg.dark_level
+    seed = np.full(cover.shape[1], 49)
+    inside = np.zeros(61, dtype=bool)
+    inside[1:60] = True
+    last = int(np.flatnonzero(dark)[-1])
+    assert bubble_end(cover, dark, seed, inside, last, step, offset, 0.6, cfg) == (last, None)
 
 
 def _narrow_bubble_ahead(gap_mm: float) -> tuple[np.ndarray, int, float, float]:

@@ -132,6 +132,9 @@ def _chain_start(k: int, far: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, 
         k, far = j, int(gap[j]) // 2
 
 
+# How far (times the array's diameter) the array's track may pass beside a bubble's interior and
+# still push it: an array riding a wall meets a bubble pushed off towards the channel's middle.
+_TRACK_MARGIN = 0.125
 # Coverage (0 fluid, 1 array) within which a station shows plain fluid: neither the array's
 # body nor a metal band (brighter than the fluid: negative coverage).
 _FLUID_COVER = 0.25
@@ -168,7 +171,10 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     the array's body beyond it; a bubble's interior is round and either wider than the array or
     followed, along the array's path, by no more than a thin rim. Bubbles touching in a chain
     show only two rims between their interiors, so a band-like interior that ends that close
-    before a bubble's is a bubble too (:func:`_chain_start`). The array ends before the first
+    before a bubble's is a bubble too (:func:`_chain_start`). A bubble lies on the array's path
+    where its interior reaches to within an eighth of the array's diameter of the array's track
+    (the median darkest offset just before it): an array riding a wall pushes a bubble towards
+    the channel's middle. The array ends before the first
     bubble on its path, less the rim's thickness (that of the rim beyond the interior): at the
     last dark station before it.
 
@@ -205,12 +211,13 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     x, y, w, h, area = (stats[1:, k] for k in range(5))
     wid_mm = h * offset_mm
     compact = _compact(x, y, w, h, area, m, n, step_mm, offset_mm, cfg)
+    margin = _TRACK_MARGIN * diameter_mm / offset_mm  # rows
     for k in np.flatnonzero(compact)[np.argsort(x[compact])].tolist():
         before = np.flatnonzero(dark[: x[k]])
         if len(before) == 0 or x[k] > end + 1 + int(np.ceil(cfg.max_gap_mm / step_mm)):
             continue
         track = np.median(seed[before[-int(np.ceil(cfg.bubble_track_mm / step_mm)):]])
-        if not (y[k] <= track < y[k] + h[k]):  # beside the array's path, not on it
+        if not (y[k] - margin <= track < y[k] + h[k] + margin):  # beside the array's path, not on it
             continue
         reach = max(int(round(0.25 * diameter_mm / offset_mm)), 0)  # rows within a quarter diameter of it
         rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
