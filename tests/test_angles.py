@@ -504,17 +504,21 @@ def _band_cover(pose: CameraPose, line: np.ndarray, radius: float, starts_mm: np
 
 
 def _draw_independent(
-    pose: CameraPose, line: np.ndarray, radius: float, thickness: int, rng: np.random.Generator
+    pose: CameraPose, line: np.ndarray, radius: float, thickness: int, rng: np.random.Generator,
+    bands: tuple[float, float, float, int] = (0.45, 0.8, 0.25, 12), band_level: float = 150.0, blur_px: float = 0.7,
 ) -> np.ndarray:
-    """A frame drawn with OpenCV at 8x and shrunk: grey background, brighter fluid in the
-    channel with dark wall lines, the array as one thick dark polyline (round ends) with grey
-    bands, then blur and noise. ``radius`` (mm) is what ``thickness`` draws."""
+    """A frame drawn with OpenCV at 8x and shrunk: grey background, brighter fluid (190) in the
+    channel with dark wall lines, the array as one thick dark polyline (round ends) with bands
+    (first one's start from the tip, pitch, length (mm) and count: by default grey 0.25 mm bands
+    every 0.8 mm) of ``band_level``, then a Gaussian blur of ``blur_px`` (px) and noise.
+    ``radius`` (mm) is what ``thickness`` draws."""
     img = _channel_image(pose)
     body = _array_mask(pose, line, radius, thickness)
     img = img * (1 - body) + 55.0 * body
-    band = _band_cover(pose, line, radius, 0.45 + 0.8 * np.arange(12), 0.25)  # grey 0.25 mm bands every 0.8 mm
-    img = img * (1 - band) + 150.0 * band
-    noisy = cv2.GaussianBlur(img, (0, 0), 0.7) + rng.normal(0.0, 3.0, img.shape)
+    first, pitch, length, count = bands
+    band = _band_cover(pose, line, radius, first + pitch * np.arange(count), length)
+    img = img * (1 - band) + band_level * band
+    noisy = cv2.GaussianBlur(img, (0, 0), blur_px) + rng.normal(0.0, 3.0, img.shape)
     return np.clip(noisy, 0, 255).astype(np.uint8)
 
 
@@ -559,6 +563,33 @@ def test_independent_frames(independent: list[tuple[float, float]]) -> None:
     tip, bot = np.array(independent).T
     assert np.median(tip) <= 0.02 and tip.max() <= 0.02
     assert np.median(bot) <= 0.08 and bot.max() <= 0.15
+
+
+def test_bands_blurred_into_the_body_are_refused_not_misread() -> None:
+    """Metal bands 0.45-0.5 mm long every 0.7-0.75 mm, brighter than the fluid (220-230 on
+    190), blurred by 1.5 px at 15 px/mm: bands and the short body between them average out
+    to a little darker than the fluid, neither dark nor bright, so the array's dark run ended
+    at the first band past the entry and the tip read 1.9-2.9 rad short, marked ok (all 8
+    frames here). The stretch after stretch of part dark that follows such a run's end now
+    refuses the frame. The same arrays at 30 px/mm (blur 1.5 px) are measured as before: 6 of 8
+    within 0.003 rad, 2 refused ("contact start unclear")."""
+    misread, misread_before, close = 0, 0, []
+    for theta_tip, theta_bot in [(2.2, 1.8), (3.3, 2.2), (4.5, 2.6), (5.6, 3.4)]:
+        for k, (length, pitch, level) in enumerate([(0.45, 0.7, 220.0), (0.5, 0.75, 230.0)]):
+            rng = np.random.default_rng(int(theta_tip * 10) + 100 * k)
+            for ppm in (15.0, 30.0):
+                pose, thickness, radius, line, truth, array = _wall_riding_array(rng, theta_tip, theta_bot, ppm, 0.7)
+                frame = _draw_independent(pose, line, radius, thickness, rng, (0.3, pitch, length, 11), level, 1.5)
+                m = measure_frame(frame, _reg(pose), array=array)
+                if ppm == 30.0:
+                    close.append(abs(m.theta_tip - truth.theta_tip) if m.ok else np.inf)
+                    continue
+                before = measure_frame(frame, _reg(pose), array=array, cfg=MeasureConfig(lighter_stretches=10**6))
+                misread += m.ok and abs(m.theta_tip - truth.theta_tip) > 0.3
+                misread_before += before.ok and abs(before.theta_tip - truth.theta_tip) > 0.3
+    assert misread == 0, misread
+    assert misread_before >= 7, misread_before  # the scenario is the failure the rule fixes
+    assert sum(e <= 0.005 for e in close) >= 6, close  # the rest refused, none misread
 
 
 # --------------------------------------------------------------------------- registration error
@@ -1172,10 +1203,13 @@ def test_long_bright_bands_do_not_end_the_array() -> None:
     entry's mouth and the tip read there, 1.4-2.5 rad short, marked ok. Stations brighter than
     the fluid by ``band_level`` and joined to the array's body now carry the run. Ten random
     poses at 15-20 px/mm, nuisance 0.3, depths 6, 10 and 14 mm, registered from the frame.
-    Measured: 11 frames right (|theta_tip error| at most 0.039 rad), none short (5 were 1.4-2.5
-    rad short where the fluid is so bright, 186-245, that a band can be no brighter, before
-    stations with dark wider than the array were left out; they are refused now); without the
-    bands carrying the run no frame is right (11 were short before that rule; all are refused)."""
+    Measured: 17 frames right (|theta_tip error| at most 0.039 rad), none short. Where the
+    fluid is so bright (186-245) that a band can be no brighter, the run ends at the first band
+    past the entry: 5 frames read 1.4-2.5 rad short before stations with dark wider than the
+    array were left out, and one 1.26 rad short once a band joined to the body on one side only
+    carried the run; such frames are refused now, the dark stretches after the run's end
+    showing that the array goes on (8 frames). Without the bands carrying the run no frame is
+    right (11 were short before that rule; all are refused)."""
     right, short, right_before = 0, 0, 0
     for seed in range(10):
         views = _banded_views(np.random.default_rng(900 + seed), (0.85, 0.95), (0.5, 0.7), 11, 50.0, 0.3,

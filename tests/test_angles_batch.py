@@ -290,7 +290,8 @@ def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.nda
                border: int = 2) -> int:
     """Reference for one row: last station of the dark run that starts in the probe stations,
     bridging gaps of up to ``max_gap`` stations that are neither dark nor in a stretch of
-    ``band`` stations with dark ones at most ``border`` stations before and after it; the run
+    ``band`` stations with dark ones at most ``border`` stations on one side and ``max_gap``
+    on the other; the run
     ends on a dark station (-1 when no probe station is dark)."""
     first = probe[dark[probe]]
     if len(first) == 0:
@@ -305,12 +306,50 @@ def _array_run(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.nda
             j = i
             while j < n and band[j]:
                 j += 1  # the stretch is i .. j-1
-            before = any(dark[max(i - 1 - border, 0):i]) and i > 0
-            after = j < n and any(dark[j:j + border + 1])
-            if before and after:
+            def near(reach: int) -> tuple[bool, bool]:
+                return i > 0 and any(dark[max(i - 1 - reach, 0):i]), j < n and any(dark[j:j + reach + 1])
+            (before, after), (before_far, after_far) = near(border), near(int(max_gap))
+            if (before and after_far) or (before_far and after):
                 carry[i:j] = True
             i = j
     idx = np.flatnonzero(carry[first[0]:]) + first[0]
     breaks = np.flatnonzero(np.diff(idx) - 1 > max_gap)
     end = int(idx[breaks[0]] if len(breaks) else idx[-1])
     return int(np.flatnonzero(dark[: end + 1])[-1])
+
+
+def _pattern(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Dark and band stations (shape (1, n)) of a pattern: ``D`` dark, ``B`` band, ``#`` both."""
+    chars = np.array(list(text))
+    return np.isin(chars, ["D", "#"])[None, :], np.isin(chars, ["B", "#"])[None, :]
+
+
+def test_runs_carry_bands_joined_to_the_body_on_one_side() -> None:
+    """Long bands with a short body between them that reads dark only here and there (an
+    independent renderer's array at 20 px/mm, coarse stations as the survey saw them): a band
+    joined to the body on one side with the body again within ``max_gap`` on the other carries
+    the run to the tip's dark cap (it stopped 22 stations short, before ``..BBBBB#``). A bright
+    stretch past the tip with no body after it (a bubble's inside) does not carry it."""
+    text = "DDDDDDDDDD.BBB.D.BBB.DD.BBB.DBBBB.D.BBB.DD.BB.DD.BBB.DD.BB.DD.BBB..BBBBB#.BBBDDDDDD...BBBBBBB......."
+    dark, band = _pattern(text)
+    probe = np.arange(5)
+    assert survey._array_runs(dark, probe, 8.0, band, 2)[0] == text.rindex("DDDDDD") + 5
+    assert _array_run(dark[0], probe, 8.0, band[0], 2) == text.rindex("DDDDDD") + 5
+    dark, band = _pattern("DDDDDDDDDD..BBBBBBB" + "." * 20 + "DD")
+    assert survey._array_runs(dark, probe, 8.0, band, 2)[0] == 9
+
+
+def test_part_dark_stretches_past_the_run_end() -> None:
+    """Bands blurred into the body: darkness alternating 0.6 / 0.0 past the run's end begins a
+    stretch per band and is refused as the array going on; shading at 0.3 +- 0.05 (never clear
+    of it) is one stretch, and so is a single bubble's far rim."""
+    rng = np.random.default_rng(0)
+    end = np.array([19])
+    blurred = np.r_[np.ones(20), np.tile([0.6, 0.6, 0.6, 0.0, 0.0, 0.0, 0.0], 6)]
+    shaded = np.r_[np.ones(20), 0.3 + rng.uniform(-0.05, 0.05, 42)]
+    rim = np.r_[np.ones(20), np.zeros(5), 0.8, 0.8, np.zeros(35)]
+    for darkness, expected in ((blurred, True), (shaded, False), (rim, False)):
+        darkness = darkness[None, :]
+        half = darkness >= 0.3
+        starts = survey._part_dark_starts(darkness, 0.3, 0.15)  # the default levels
+        assert survey._run_resumes(half, half, end, 8.0, 21, 21, 3, starts)[0] == expected

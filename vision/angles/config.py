@@ -167,6 +167,22 @@ class MeasureConfig:
         stretches in it, and where no bubble was found at or ahead of the tip, is not
         measured: the array may go on there with its body too light to count as dark
         throughout (the run ended at a shadow's edge), and where its tip lies is unknown.
+    lighter_level : float
+        Darkness (0 the fluid, 1 the array's body) from which a station past the dark run's
+        end is part dark.
+    lighter_clear : float
+        Share of a darkness level below which a station is clear of it: a stretch at that
+        level counts towards :attr:`lighter_stretches` where a clear station separates it from
+        the one before (noise about a level does not begin new stretches).
+    lighter_stretches : int
+        A frame where, as for ``resume_mm``, a run of part-dark stations follows the dark
+        run's end with this many separate stretches or more in its first twice
+        ``resume_length_mm`` is not measured either, bubble or
+        not: long metal bands blurred together with the short body between them leave the
+        array only part dark, stretch after stretch (shading across the fluid is part dark
+        throughout, in one stretch). Nor is one followed by as many dark stretches
+        (``dark_level``) with gaps of up to twice ``max_gap_mm`` between them: bands as bright
+        as the fluid, longer than a run may bridge.
     min_contrast : float
         Smallest fluid-minus-array difference (grey levels) of a usable frame.
     gap_smooth_mm : float
@@ -285,6 +301,9 @@ class MeasureConfig:
     band_width_mm: float = 1.5
     resume_mm: float = 2.0
     resume_length_mm: float = 2.0
+    lighter_level: float = 0.3
+    lighter_clear: float = 0.5
+    lighter_stretches: int = 3
     min_contrast: float = 12.0
     gap_smooth_mm: float = 0.4
     outlier_px: float = 1.5

@@ -71,7 +71,9 @@ def measure_frame(
         ``reason``: ``"array not in channel"`` (no array at the entry's outer end: not
         inserted yet, absent, hidden, or too faint), ``"tip out of view"``, ``"entry out of
         view"``, ``"array edges not found"``, bright bands going on past the dark run's end
-        (the array lighter past a shadow's edge, see ``MeasureConfig.resume_mm``), the array's
+        (the array lighter past a shadow's edge, see ``MeasureConfig.resume_mm``), part-dark
+        stretches going on past it (bands blurred into the body, see
+        ``MeasureConfig.lighter_stretches``), the array's
         bands beside the dark run rather than on it (the run its shadow, see
         :mod:`tympani.vision.angles.shadow`), ``"bad frame: ..."`` or ``"measurement failed:
         ..."``. ``extras['time_ms']`` is the time
@@ -166,6 +168,8 @@ _ERRORS = (ValueError, IndexError, FloatingPointError, cv2.error)
 # Why a frame whose dark run is followed by a train of bright stretches (metal bands, with the
 # array's body too light to count as dark) is not measured (:attr:`Survey.resumes`).
 _RESUMES = "bright bands go on past the dark run's end (the array out of a shadow?)"
+# ... and one followed by stretch after stretch of part dark (:attr:`Survey.lighter`), bubbles or not.
+_LIGHTER = "part-dark stretches go on past the dark run's end (bands blurred into the array's body?)"
 
 
 def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasurement]:
@@ -188,6 +192,8 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             for j, k in enumerate(found):  # bright stretches past the tip that no bubble explains
                 if surveys[k].resumes and not edges[j].bubble:
                     lines[j] = _RESUMES
+                elif surveys[k].lighter:
+                    lines[j] = _LIGHTER
             t3 = time.perf_counter()
             measured = [j for j, c in enumerate(lines) if isinstance(c, CentreLine)]
             finals = results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j], plan.step_mm))

@@ -26,7 +26,8 @@ class Survey:
     ``fluid_c`` fluid level (grey levels), ``rho`` array / fluid, ``contrast`` fluid − array
     at the entry (grey levels), ``seed_c`` darkest offset (coarse index), ``tip_est`` the
     dark run's last station (fine index), ``resumes`` whether a train of bright stretches
-    goes on past it (:func:`_run_resumes`).
+    goes on past it (:func:`_run_resumes`), ``lighter`` whether stretch after stretch of part
+    dark does (``MeasureConfig.lighter_stretches``).
     """
 
     fluid_c: np.ndarray
@@ -35,6 +36,7 @@ class Survey:
     seed_c: np.ndarray
     tip_est: int
     resumes: bool = False
+    lighter: bool = False
 
 
 def _band_border_c(cfg: MeasureConfig, step_mm: float) -> int:
@@ -170,11 +172,13 @@ def _array_ratio_low(
     return np.fmin(every, _array_ratios(darkest, brightest, steepest, fluid, entry, min_count))
 
 
-def _attached(band: np.ndarray, dark: np.ndarray, border: int) -> np.ndarray:
+def _attached(band: np.ndarray, dark: np.ndarray, border: int, reach: int) -> np.ndarray:
     """Stations of ``band`` (shape (B, n)) in an unbroken stretch of band stations with a dark
-    station at most ``border`` stations before and after it: a metal band lies between two
-    stretches of the array's body (its borders blurred over a few stations), a glint or a
-    bubble's halo out in the fluid does not."""
+    station at most ``border`` stations on one side of it and at most ``reach`` stations on the
+    other: a metal band lies between two stretches of the array's body (its borders blurred
+    over a few stations; where bands are long and the body between them short, the thin body
+    near the tip reads dark only here and there), a glint or a bubble's halo out in the fluid
+    does not."""
     n_rows, n = band.shape
     at = np.arange(n)
     far = n + border + 1
@@ -185,7 +189,9 @@ def _attached(band: np.ndarray, dark: np.ndarray, border: int) -> np.ndarray:
     stop = np.minimum.accumulate(np.where(band, n, at)[:, ::-1], axis=1)[:, ::-1]
     before = np.take_along_axis(last_dark, np.maximum(start - 1, 0), axis=1)
     after = np.take_along_axis(next_dark, np.minimum(stop, n - 1), axis=1)
-    return band & (start > 0) & (start - before - 1 <= border) & (stop < n) & (after - stop <= border)
+    gap_before, gap_after = start - before - 1, after - stop
+    joined = ((gap_before <= border) & (gap_after <= reach)) | ((gap_before <= reach) & (gap_after <= border))
+    return band & (start > 0) & (stop < n) & joined
 
 
 def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.ndarray | None = None,
@@ -197,12 +203,13 @@ def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.nd
     The run ends at the first dark station from its start whose next dark station is more
     than ``max_gap`` stations away, or that has none. Stations of ``band`` (shape (B, n), a
     metal band brighter than the fluid) carry the run like dark ones where they join a dark
-    station (:func:`_attached`, within ``border`` stations), but it still ends on a dark station:
-    a band longer than ``max_gap`` does not end the array.
+    station (:func:`_attached`: within ``border`` stations on one side, ``max_gap`` on the
+    other), but it still ends on a dark station: a band longer than ``max_gap`` does not end
+    the array.
     """
     n_rows, n = dark.shape
     at = np.arange(n)
-    carry = dark if band is None else dark | _attached(band, dark, border)
+    carry = dark if band is None else dark | _attached(band, dark, border, int(max_gap))
     in_probe = dark[:, probe]
     start = np.where(in_probe.any(axis=1), probe[in_probe.argmax(axis=1)], n)
     nxt = np.full((n_rows, n), n)  # the next carrying station after each station (n: none)
@@ -216,14 +223,17 @@ def _array_runs(dark: np.ndarray, probe: np.ndarray, max_gap: float, band: np.nd
 
 
 def _run_resumes(dark: np.ndarray, band: np.ndarray, end: np.ndarray, max_gap: float, reach: int,
-                 length: int) -> np.ndarray:
+                 length: int, stretches: int = 2, starts: np.ndarray | None = None,
+                 window: int | None = None) -> np.ndarray:
     """Per row (frame) of ``dark`` and ``band`` (shape (B, n)), whether another run of dark or
     band stations, bridging gaps up to ``max_gap`` stations, starts within ``reach`` stations
     past ``end`` (the dark run's last station; −1: none), goes on for ``length`` stations or
-    more and holds two or more separate band stretches: a train of bright stretches longer
-    than a bubble, the array going on where its body is too light to count as dark (the run
-    ended at a shadow's edge), or a chain of bubbles ahead of the tip. Shading across the
-    fluid makes no bands."""
+    more and holds ``stretches`` or more separate band stretches: a train of bright stretches
+    longer than a bubble, the array going on where its body is too light to count as dark
+    (the run ended at a shadow's edge), or a chain of bubbles ahead of the tip. Shading across
+    the fluid makes no bands. ``starts`` (shape (B, n), bool), where given, marks the stations
+    that begin a stretch in place of each band stretch's first station; ``window``, where given,
+    counts them only over the run's first ``window`` stations."""
     n_rows, n = dark.shape
     at = np.arange(n)
     past = (at > end[:, None]) & (end[:, None] >= 0)
@@ -236,14 +246,30 @@ def _run_resumes(dark: np.ndarray, band: np.ndarray, end: np.ndarray, max_gap: f
     flat = np.flatnonzero(carry)  # row-major: runs are contiguous
     if not len(flat):
         return np.zeros(n_rows, dtype=bool)
-    starts = np.flatnonzero(first.ravel()[flat])
-    lo, hi = flat[starts], flat[np.r_[starts[1:], len(flat)] - 1]  # each run's first and last (flat)
-    band_starts = band.copy()
-    band_starts[:, 1:] &= ~band[:, :-1]
-    count = np.concatenate([[0], np.cumsum(band_starts.ravel())])
+    heads = np.flatnonzero(first.ravel()[flat])
+    lo, hi = flat[heads], flat[np.r_[heads[1:], len(flat)] - 1]  # each run's first and last (flat)
+    if starts is None:
+        starts = band.copy()
+        starts[:, 1:] &= ~band[:, :-1]
+    count = np.concatenate([[0], np.cumsum(starts.ravel())])
     row = lo // n
-    ok = ((lo % n) - end[row] - 1 < reach) & (hi - lo >= length) & (count[hi + 1] - count[lo] >= 2)
+    last = hi if window is None else np.minimum(hi, lo + window - 1)
+    ok = ((lo % n) - end[row] - 1 < reach) & (hi - lo >= length) & (count[last + 1] - count[lo] >= stretches)
     return np.bincount(row[ok], minlength=n_rows) > 0
+
+
+def _part_dark_starts(darkness: np.ndarray, level: float, clear: float) -> np.ndarray:
+    """Stations (shape (B, n), bool) that begin a part-dark stretch: at least ``level`` dark
+    (``darkness``: 0 the fluid, 1 the array's body) with a station under ``clear`` since the
+    previous such station, or none before it. Noise about a level in between (shading) does
+    not begin new stretches."""
+    n_rows, n = darkness.shape
+    at = np.arange(n)
+    half = darkness >= level
+    prev_half = np.maximum.accumulate(np.where(half, at, -1), axis=1)
+    prev_half = np.concatenate([np.full((n_rows, 1), -1), prev_half[:, :-1]], axis=1)
+    last_clear = np.maximum.accumulate(np.where(darkness < clear, at, -1), axis=1)
+    return half & ((last_clear > prev_half) | (prev_half < 0))
 
 
 def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | FrameMeasurement]:
@@ -308,8 +334,21 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     band = (lit > 0) & (lit * across_mm <= cfg.band_width_mm) & view_c
     max_gap_c = cfg.max_gap_mm / (sa * step)
     runs = _array_runs(dark, probe, max_gap_c, band, _band_border_c(cfg, step))
-    resumes = _run_resumes(dark, band, runs, max_gap_c, int(np.ceil(cfg.resume_mm / (sa * step))),
-                           int(np.ceil(cfg.resume_length_mm / (sa * step)))).tolist()
+    resume_reach, resume_length = (int(np.ceil(x / (sa * step))) for x in (cfg.resume_mm, cfg.resume_length_mm))
+    resumes = _run_resumes(dark, band, runs, max_gap_c, resume_reach, resume_length)
+    # the array going on past the run's end: with bands and body blurred together, no longer
+    # dark nor bright but part dark in stretch after stretch; or with bands as bright as the
+    # fluid and longer than the gaps a run may bridge, dark stretch after dark stretch
+    darkness = np.where(view_c, (1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]), 0.0)
+    half = darkness >= cfg.lighter_level
+    lighter = _run_resumes(half, half, runs, max_gap_c, resume_reach, resume_length, cfg.lighter_stretches,
+                           _part_dark_starts(darkness, cfg.lighter_level, cfg.lighter_clear * cfg.lighter_level),
+                           2 * resume_length)
+    lighter |= _run_resumes(dark, dark, runs, 2.0 * max_gap_c, resume_reach, resume_length, cfg.lighter_stretches,
+                            _part_dark_starts(darkness, cfg.dark_level, cfg.lighter_clear * cfg.dark_level),
+                            2 * resume_length)
+    lighter = lighter.tolist()
+    resumes = resumes.tolist()
     tips_c = runs.tolist()
     out: list[Survey | FrameMeasurement] = []
     for b in range(n_rows):
@@ -326,5 +365,5 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
         elif not plan.in_view[min(sa * tip_c + sa + 2, len(plan.p_mm) - 1)]:
             out.append(failure("tip out of view", contrast=c))
         else:
-            out.append(Survey(fluid_c[b], float(rho2[b]), c, seed_c[b], sa * tip_c, bool(resumes[b])))
+            out.append(Survey(fluid_c[b], float(rho2[b]), c, seed_c[b], sa * tip_c, bool(resumes[b]), bool(lighter[b])))
     return out
