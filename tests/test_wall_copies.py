@@ -61,15 +61,15 @@ def test_the_copy_the_array_touches_is_kept(tmp_path: Path, seed: int) -> None:
     assert (truth["theta_con"] > 0.05).to_numpy()[kept["ok"].to_numpy()].sum() >= 5
 
 
-@pytest.mark.parametrize("seed", [11, 13, 14])
+@pytest.mark.parametrize("seed", [11, 13, 18])
 def test_a_registration_on_the_copy_the_array_does_not_touch_is_measured_again(tmp_path: Path, seed: int) -> None:
     """Given the registration of the wrong copy (the true pose moved by the parallax), the
     extraction switches to the true one and measures every frame as it does given the true
-    copy. (Of seeds 11-16, 11, 13 and 14 switch: on the wrong copy the tip stands off the
-    wall, or the array crosses it, past half a turn. On 15 and 16 too few frames there say so,
-    two and none: in the others the tip touches both copies' walls, where only the contact
-    run's length differs, which is no evidence, or the frame is refused; on 12 every frame
-    past half a turn is refused.)"""
+    copy. (Of seeds 11-20, 11, 13 and 18 switch: on the wrong copy the tip stands off the
+    wall, or the array crosses it, past half a turn. In the others too few frames there say
+    so: the tip touches both copies' walls, where only the contact run's length differs, which
+    is no evidence, or the frame is refused (on 12 every frame past half a turn; on 14 enough
+    of them, at the tip's checks, that the video is mostly unread on the wrong copy).)"""
     path, pose, shift, truth = _video(tmp_path, seed)
     right = _right(pose, shift)
     kept, _ = extract_video(path, ExtractConfig(), steps=_steps(right))

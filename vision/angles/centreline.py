@@ -3,13 +3,15 @@
 From the edges and the array's known shape (:func:`centre_line_batch`): stations where the dark
 is wider than the array (something dark joined to it) are not used, and checks refuse a dark run
 that is not the array's (no edges near its end, edges not the array's width, a last stretch
-without the inner edge or crossing a wall).
+without the inner edge or crossing a wall, a tip on dark fainter than the array or with a
+band's brightness just past it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from tympani.vision.angles.arrays import odd_ceil, take2d
@@ -31,6 +33,12 @@ from tympani.vision.geometry import ElectrodeArray
 
 # Why a frame whose dark run has the array's bands beside it is not measured (:mod:`.shadow`).
 _BESIDE = "the array's bands show beside the dark run, not on it (its shadow followed?)"
+
+
+# Why a frame whose tip lies on dark fainter than the array is not measured (:func:`tip_darkness`).
+_FAINT = "the dark at the tip is fainter than the array (a shadow or a speck past the tip?)"
+# Why a frame with something as bright as a band just past its tip is not measured (:func:`bright_past_tip`).
+_BAND_PAST = "a metal band's brightness just past the tip (the array's end not seen?)"
 
 
 @dataclass(frozen=True)
@@ -169,6 +177,102 @@ def _centre_offsets(
     return v_c, (use_in | use_out) & (s >= cap_min * 0.5 * array.tip_diameter_mm), radius
 
 
+def _near_tip(fine: np.ndarray, half_mm: np.ndarray, u: np.ndarray, j0: int, j1: int, tip_v: float, r_tip_mm: float,
+              margin_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The strip's stations ``j0 .. j1`` (a 3×3 mean, so that noise does not pass for dark or
+    bright) and, per offset and station, whether the offset lies clear of the walls
+    (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's offset ``tip_v`` (mm)."""
+    a = max(j0 - 1, 0)
+    smooth = cv2.blur(fine[:, a : j1 + 2], (3, 3))[:, j0 - a : j1 - a + 1]
+    off = u[:, None] * half_mm[None, j0 : j1 + 1]
+    near = (np.abs(off) <= (half_mm[j0 : j1 + 1] - margin_mm)[None, :]) & (np.abs(off - tip_v) <= r_tip_mm)
+    return smooth, near
+
+
+def tip_darkness(fine: np.ndarray, fluid: np.ndarray, contrast: np.ndarray, half_mm: np.ndarray, u: np.ndarray,
+                 tip_f: float, tip_v: float, step_mm: float, r_tip_mm: float, margin_mm: float,
+                 stretch_mm: tuple[float, float]) -> float:
+    """How dark (coverage: 0 fluid, 1 the array's nominal contrast) the array's last stretch is:
+    the darkest point (3×3 mean) clear of the walls and within the tip radius of the tip's
+    offset, over the stations ``stretch_mm`` (mm, nearest and farthest) basal of the tip; NaN
+    where that stretch has no station.
+
+    Parameters
+    ----------
+    fine : ndarray, shape (m, k)
+        The frame's fine strip (grey levels), offsets × stations from its first.
+    fluid, contrast : ndarray, shape (k,)
+        Fluid level and fluid-minus-array contrast (grey levels) per station.
+    half_mm : ndarray, shape (k,)
+        The channel's half-width (mm) per station.
+    u : ndarray, shape (m,)
+        Normalised offsets (−1 inner wall, +1 outer wall).
+    tip_f : float
+        The tip (fractional station).
+    tip_v : float
+        The tip's offset (mm, along the backbone normal).
+    step_mm : float
+        Station spacing (mm).
+    r_tip_mm : float
+        The array's tip radius (mm).
+    margin_mm : float
+        Offsets this close (mm) to a wall are not used (a wall line may be dark).
+    stretch_mm : tuple of float
+        Nearest and farthest distance (mm) basal of the tip of the stations used.
+    """
+    j0 = max(int(np.ceil(tip_f - stretch_mm[1] / step_mm)), 0)
+    j1 = min(int(np.floor(tip_f - stretch_mm[0] / step_mm)), fine.shape[1] - 1)
+    if j1 < j0:
+        return float("nan")
+    smooth, near = _near_tip(fine, half_mm, u, j0, j1, tip_v, r_tip_mm, margin_mm)
+    if not near.any():
+        return float("nan")
+    cover = (fluid[j0 : j1 + 1] - smooth) / contrast[j0 : j1 + 1]
+    return float(cover[near].max())
+
+
+def bright_past_tip(fine: np.ndarray, fluid: np.ndarray, half_mm: np.ndarray, u: np.ndarray, tip_f: float,
+                    tip_v: float, step_mm: float, r_tip_mm: float, margin_mm: float, stretch_mm: tuple[float, float],
+                    band_level: float) -> float:
+    """The share of the stations ``stretch_mm`` (mm, nearest and farthest) past the tip where
+    something as bright as a metal band lies on the array's track: a point (3×3 mean) clear of
+    the walls and within the tip radius of the tip's offset at least ``band_level`` brighter
+    than the fluid (a fraction of it). NaN where fewer than two stations lie there.
+
+    Parameters
+    ----------
+    fine : ndarray, shape (m, k)
+        The frame's fine strip (grey levels), offsets × stations from its first.
+    fluid : ndarray, shape (k,)
+        Fluid level (grey levels) per station.
+    half_mm : ndarray, shape (k,)
+        The channel's half-width (mm) per station.
+    u : ndarray, shape (m,)
+        Normalised offsets (−1 inner wall, +1 outer wall).
+    tip_f : float
+        The tip (fractional station).
+    tip_v : float
+        The tip's offset (mm, along the backbone normal).
+    step_mm : float
+        Station spacing (mm).
+    r_tip_mm : float
+        The array's tip radius (mm).
+    margin_mm : float
+        Offsets this close (mm) to a wall are not used (a wall line may be bright).
+    stretch_mm : tuple of float
+        Nearest and farthest distance (mm) past the tip of the stations used.
+    band_level : float
+        How much brighter than the fluid (fraction of it) a band is.
+    """
+    j0 = int(np.ceil(tip_f + stretch_mm[0] / step_mm))
+    j1 = min(int(np.floor(tip_f + stretch_mm[1] / step_mm)), fine.shape[1] - 1)
+    if j1 - j0 < 1:
+        return float("nan")
+    smooth, near = _near_tip(fine, half_mm, u, j0, j1, tip_v, r_tip_mm, margin_mm)
+    lit = smooth - fluid[j0 : j1 + 1] >= band_level * fluid[j0 : j1 + 1]
+    return float(np.mean((lit & near).any(axis=0)))
+
+
 def tip_reach(array: ElectrodeArray, cfg: MeasureConfig) -> float:
     """Farthest (mm) the tip may lie past the last station with measured edges: the array's
     first band's far end from the tip (no band: nothing) plus ``cfg.band_edge_mm``, at most
@@ -275,7 +379,23 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     odd |= (n_meas >= min_count) & (rg.count(in_wall) >= cfg.tip_wall_share * n_meas)
     for b in np.flatnonzero(good & ~bare & odd):
         out[int(live[b])] = f"the dark run's last {cfg.tip_width_mm:g} mm does not look like the array (a line?)"
-    keep = np.flatnonzero(good & ~bare & ~odd)
+    # the tip's last stretch as dark as the array, and no band's brightness just past it
+    unlike = np.zeros(len(live), dtype=bool)
+    margin = cfg.wall_margin_px / ppm
+    for b in np.flatnonzero(good & ~bare & ~odd).tolist():
+        e = edges[int(live[b])]
+        half_e = plan.half_mm[e.lo : e.lo + e.fine.shape[1]]
+        tip_b, v_b = float(tip_f[b]), float(tip_u[b] * half_tip[b])
+        dark = tip_darkness(e.fine, e.fluid, e.contrast, half_e, plan.u, tip_b, v_b, step, plan.r_tip_mm, margin,
+                            cfg.tip_dark_mm)
+        if dark < cfg.tip_dark_min * e.array_cover:  # NaN compares False
+            unlike[b] = True
+            out[int(live[b])] = _FAINT
+        elif not e.bubble and bright_past_tip(e.fine, e.fluid, half_e, plan.u, tip_b, v_b, step, plan.r_tip_mm, margin,
+                                              cfg.band_past_mm, cfg.band_level) >= cfg.band_past_share:
+            unlike[b] = True
+            out[int(live[b])] = _BAND_PAST
+    keep = np.flatnonzero(good & ~bare & ~odd & ~unlike)
     if not len(keep):
         return out
     width_ratio = _width_ratio(v_in, v_out, both, width, rg)

@@ -34,7 +34,8 @@ class Edges:
     ``fine`` the strip (grey levels), ``fluid`` and ``contrast`` per station (grey levels),
     ``seed`` darkest offset, ``v_in``/``v_out`` edge offsets (mm) and ``ok_in``/``ok_out``
     where they are the array body's, ``level`` the coverage half way between the fluid and
-    the array beside it, ``bubble`` whether an air bubble was found at or ahead of the tip.
+    the array beside it, ``bubble`` whether an air bubble was found at or ahead of the tip,
+    ``array_cover`` the array's coverage just inside its inner edge (1: the survey's contrast).
     """
 
     lo: int
@@ -49,6 +50,7 @@ class Edges:
     ok_out: np.ndarray
     level: float
     bubble: bool = False
+    array_cover: float = 1.0
 
 
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
@@ -341,5 +343,5 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         a = slice(s, s + m)
         out.append(Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
                           v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b])),
-                          bool(bubble[b])))
+                          bool(bubble[b]), float(c_a[b])))
     return out
