@@ -201,7 +201,7 @@ def test_ragged_tip_and_extrapolation_equal_per_frame(seed: int) -> None:
     measured = (rng.random(rg.row.size) < 0.7) | (rg.local == 0)
     last = rg.last(measured)
     sel = measured & (rg.local >= (last - span)[rg.row])
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="raise", invalid="raise"):  # a frame fitted to one station divides nothing by zero
         got = extrapolate_ragged(stations, values, sel, span, rg)
     for b, (st, v, ms) in enumerate(zip(rg.split(stations), rg.split(values), rg.split(measured))):
         expected = ref.extrapolate(st[ms].astype(int), v[ms], float(rg.n[b] - 1), span)
@@ -353,3 +353,16 @@ def test_part_dark_stretches_past_the_run_end() -> None:
         half = darkness >= 0.3
         starts = survey._part_dark_starts(darkness, 0.3, 0.15)  # the default levels
         assert survey._run_resumes(half, half, end, 8.0, 21, 21, 3, starts)[0] == expected
+
+
+def test_a_line_fitted_to_one_station_gives_that_stations_value() -> None:
+    """A frame whose fitted stretch holds one station gives that station's value (the median
+    of a stretch too short for a line), without dividing by zero; the other frame its line's
+    value at its last station."""
+    rg = Ragged.of([5, 4])
+    stations = rg.local.astype(float)
+    values = np.array([0.0, 0.0, 7.0, 0.0, 0.0, 1.0, 2.0, 3.0, 4.0])
+    sel = np.array([False, False, True, False, False, True, True, True, True])
+    with np.errstate(divide="raise", invalid="raise"):
+        got = extrapolate_ragged(stations, values, sel, 6.0, rg)
+    np.testing.assert_allclose(got, [7.0, 4.0])

@@ -455,7 +455,9 @@ def extrapolate_ragged(stations: np.ndarray, values: np.ndarray, sel: np.ndarray
     r, v = rg.pad(np.where(sel, stations, 0.0), 0.0), rg.pad(np.where(sel, values, 0.0), 0.0)
     rm, vm = r.sum(axis=1) / count, v.sum(axis=1) / count
     dr = np.where(w, r - rm[:, None], 0.0)
-    line = vm + (dr * (v - vm[:, None])).sum(axis=1) / (dr * dr).sum(axis=1) * ((rg.n - 1) - rm)
+    num, den = (dr * (v - vm[:, None])).sum(axis=1), (dr * dr).sum(axis=1)
+    slope = np.divide(num, den, out=np.zeros_like(num), where=den > 0)  # den 0: one station, taken as short
+    line = vm + slope * ((rg.n - 1) - rm)
     spread = np.where(w, r, -np.inf).max(axis=1) - np.where(w, r, np.inf).min(axis=1)
     short = (count < 3) | (spread < span / 3)
     return np.where(short, row_quantiles(v, w, 0.5), line) if short.any() else line
