@@ -1306,7 +1306,7 @@ def test_the_darkness_at_the_tip_is_read_over_the_tips_last_stretch(seed: int) -
     the array's (1 within 0.05); read at the blob's end, the blob's (0.45 within 0.05: the
     wall lines, 1.6 as dark and within the tip radius when the array touches a wall, lie in
     the wall margin and are not used); a tip with no station over the stretch reads NaN."""
-    from tympani.vision.angles.centreline import tip_darkness
+    from tympani.vision.angles.centreline import TipView, tip_darkness
 
     rng = np.random.default_rng(seed)
     step, half, r_tip = 0.05, 0.7, 0.3
@@ -1321,11 +1321,13 @@ def test_the_darkness_at_the_tip_is_read_over_the_tips_last_stretch(seed: int) -
     fine[np.ix_(across, blob)] = 180.0 - 45.0
     fine[np.abs(off) > half - 0.05, :] = 20.0  # dark wall lines
     fine += rng.normal(0.0, 2.0, fine.shape)
-    args = (np.full(k, 180.0), np.full(k, 100.0), np.full(k, half), u)
-    at_tip = tip_darkness(fine, *args, float(tip), v, step, r_tip, 0.15, (0.1, 0.35))
-    at_blob = tip_darkness(fine, *args, float(blob[-1]), v, step, r_tip, 0.15, (0.1, 0.35))
+    def darkness(tip_f: float) -> float:
+        view = TipView(fine, np.full(k, 180.0), np.full(k, 100.0), np.full(k, half), u, tip_f, v)
+        return tip_darkness(view, step, r_tip, 0.15, (0.1, 0.35))
+
+    at_tip, at_blob = darkness(float(tip)), darkness(float(blob[-1]))
     assert abs(at_tip - 1.0) <= 0.05 and abs(at_blob - 0.45) <= 0.05, (at_tip, at_blob)
-    assert np.isnan(tip_darkness(fine, *args, 1.0, v, step, r_tip, 0.15, (0.1, 0.35)))
+    assert np.isnan(darkness(1.0))
 
 
 def test_a_band_at_the_very_tip_is_refused_not_read_short() -> None:
@@ -1353,7 +1355,7 @@ def test_bright_past_the_tip_is_read_where_a_band_would_lie(seed: int) -> None:
     both), plus noise (2 levels). Over 0.05-0.25 mm past the tip the band is bright at 4 of the 5
     stations (the first is mixed with the tip's dark by the 3x3 mean), the bubble at none: the
     wall lines, brighter still, lie in the wall margin. Fewer than two stations there: NaN."""
-    from tympani.vision.angles.centreline import bright_past_tip
+    from tympani.vision.angles.centreline import TipView, bright_past_tip
 
     rng = np.random.default_rng(seed)
     step, half, r_tip = 0.05, 0.7, 0.3
@@ -1368,8 +1370,8 @@ def test_bright_past_the_tip_is_read_where_a_band_would_lie(seed: int) -> None:
         fine[np.ix_(across, np.arange(tip + 1 + start, tip + 12 + start))] = 220.0
         fine[np.abs(off) > half - 0.05, :] = 250.0
         fine += rng.normal(0.0, 2.0, fine.shape)
-        shares.append(bright_past_tip(fine, np.full(k, 180.0), np.full(k, half), u, float(tip), v, step, r_tip, 0.15,
-                                      (0.05, 0.25), 0.15))
+        view = TipView(fine, np.full(k, 180.0), np.full(k, 100.0), np.full(k, half), u, float(tip), v)
+        shares.append(bright_past_tip(view, step, r_tip, 0.15, (0.05, 0.25), 0.15))
     assert shares == [0.8, 0.0], shares
-    assert np.isnan(bright_past_tip(fine, np.full(k, 180.0), np.full(k, half), u, float(k - 2), v, step, r_tip, 0.15,
-                                    (0.05, 0.25), 0.15))
+    view = TipView(fine, np.full(k, 180.0), np.full(k, 100.0), np.full(k, half), u, float(k - 2), v)
+    assert np.isnan(bright_past_tip(view, step, r_tip, 0.15, (0.05, 0.25), 0.15))

@@ -177,20 +177,38 @@ def _centre_offsets(
     return v_c, (use_in | use_out) & (s >= cap_min * 0.5 * array.tip_diameter_mm), radius
 
 
-def _near_tip(fine: np.ndarray, half_mm: np.ndarray, u: np.ndarray, j0: int, j1: int, tip_v: float, r_tip_mm: float,
-              margin_mm: float) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class TipView:
+    """One frame's strip around its tip, for the checks of the tip's last stretch.
+
+    ``fine`` the fine strip (grey levels, offsets × stations from its first); per station
+    ``fluid`` and ``contrast`` (fluid minus array, grey levels) and ``half_mm`` (the channel's
+    half-width, mm); ``u`` the normalised offsets (−1 inner wall, +1 outer wall); the tip at
+    fractional station ``tip_f`` and offset ``tip_v`` (mm, along the backbone normal).
+    """
+
+    fine: np.ndarray
+    fluid: np.ndarray
+    contrast: np.ndarray
+    half_mm: np.ndarray
+    u: np.ndarray
+    tip_f: float
+    tip_v: float
+
+
+def _near_tip(view: TipView, j0: int, j1: int, r_tip_mm: float, margin_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """The strip's stations ``j0 .. j1`` (a 3×3 mean, so that noise does not pass for dark or
     bright) and, per offset and station, whether the offset lies clear of the walls
-    (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's offset ``tip_v`` (mm)."""
+    (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's offset."""
     a = max(j0 - 1, 0)
-    smooth = cv2.blur(fine[:, a : j1 + 2], (3, 3))[:, j0 - a : j1 - a + 1]
-    off = u[:, None] * half_mm[None, j0 : j1 + 1]
-    near = (np.abs(off) <= (half_mm[j0 : j1 + 1] - margin_mm)[None, :]) & (np.abs(off - tip_v) <= r_tip_mm)
+    smooth = cv2.blur(view.fine[:, a : j1 + 2], (3, 3))[:, j0 - a : j1 - a + 1]
+    half = view.half_mm[j0 : j1 + 1]
+    off = view.u[:, None] * half[None, :]
+    near = (np.abs(off) <= (half - margin_mm)[None, :]) & (np.abs(off - view.tip_v) <= r_tip_mm)
     return smooth, near
 
 
-def tip_darkness(fine: np.ndarray, fluid: np.ndarray, contrast: np.ndarray, half_mm: np.ndarray, u: np.ndarray,
-                 tip_f: float, tip_v: float, step_mm: float, r_tip_mm: float, margin_mm: float,
+def tip_darkness(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: float,
                  stretch_mm: tuple[float, float]) -> float:
     """How dark (coverage: 0 fluid, 1 the array's nominal contrast) the array's last stretch is:
     the darkest point (3×3 mean) clear of the walls and within the tip radius of the tip's
@@ -199,18 +217,8 @@ def tip_darkness(fine: np.ndarray, fluid: np.ndarray, contrast: np.ndarray, half
 
     Parameters
     ----------
-    fine : ndarray, shape (m, k)
-        The frame's fine strip (grey levels), offsets × stations from its first.
-    fluid, contrast : ndarray, shape (k,)
-        Fluid level and fluid-minus-array contrast (grey levels) per station.
-    half_mm : ndarray, shape (k,)
-        The channel's half-width (mm) per station.
-    u : ndarray, shape (m,)
-        Normalised offsets (−1 inner wall, +1 outer wall).
-    tip_f : float
-        The tip (fractional station).
-    tip_v : float
-        The tip's offset (mm, along the backbone normal).
+    view : TipView
+        The frame's strip and tip.
     step_mm : float
         Station spacing (mm).
     r_tip_mm : float
@@ -220,56 +228,32 @@ def tip_darkness(fine: np.ndarray, fluid: np.ndarray, contrast: np.ndarray, half
     stretch_mm : tuple of float
         Nearest and farthest distance (mm) basal of the tip of the stations used.
     """
-    j0 = max(int(np.ceil(tip_f - stretch_mm[1] / step_mm)), 0)
-    j1 = min(int(np.floor(tip_f - stretch_mm[0] / step_mm)), fine.shape[1] - 1)
+    j0 = max(int(np.ceil(view.tip_f - stretch_mm[1] / step_mm)), 0)
+    j1 = min(int(np.floor(view.tip_f - stretch_mm[0] / step_mm)), view.fine.shape[1] - 1)
     if j1 < j0:
         return float("nan")
-    smooth, near = _near_tip(fine, half_mm, u, j0, j1, tip_v, r_tip_mm, margin_mm)
+    smooth, near = _near_tip(view, j0, j1, r_tip_mm, margin_mm)
     if not near.any():
         return float("nan")
-    cover = (fluid[j0 : j1 + 1] - smooth) / contrast[j0 : j1 + 1]
+    cover = (view.fluid[j0 : j1 + 1] - smooth) / view.contrast[j0 : j1 + 1]
     return float(cover[near].max())
 
 
-def bright_past_tip(fine: np.ndarray, fluid: np.ndarray, half_mm: np.ndarray, u: np.ndarray, tip_f: float,
-                    tip_v: float, step_mm: float, r_tip_mm: float, margin_mm: float, stretch_mm: tuple[float, float],
+def bright_past_tip(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: float, stretch_mm: tuple[float, float],
                     band_level: float) -> float:
     """The share of the stations ``stretch_mm`` (mm, nearest and farthest) past the tip where
     something as bright as a metal band lies on the array's track: a point (3×3 mean) clear of
-    the walls and within the tip radius of the tip's offset at least ``band_level`` brighter
-    than the fluid (a fraction of it). NaN where fewer than two stations lie there.
-
-    Parameters
-    ----------
-    fine : ndarray, shape (m, k)
-        The frame's fine strip (grey levels), offsets × stations from its first.
-    fluid : ndarray, shape (k,)
-        Fluid level (grey levels) per station.
-    half_mm : ndarray, shape (k,)
-        The channel's half-width (mm) per station.
-    u : ndarray, shape (m,)
-        Normalised offsets (−1 inner wall, +1 outer wall).
-    tip_f : float
-        The tip (fractional station).
-    tip_v : float
-        The tip's offset (mm, along the backbone normal).
-    step_mm : float
-        Station spacing (mm).
-    r_tip_mm : float
-        The array's tip radius (mm).
-    margin_mm : float
-        Offsets this close (mm) to a wall are not used (a wall line may be bright).
-    stretch_mm : tuple of float
-        Nearest and farthest distance (mm) past the tip of the stations used.
-    band_level : float
-        How much brighter than the fluid (fraction of it) a band is.
+    the walls and within the tip radius of the tip's offset at least ``band_level`` (a fraction
+    of the fluid's level) brighter than the fluid. NaN where fewer than two stations lie there.
+    Parameters as :func:`tip_darkness` (``margin_mm``: a wall line may be bright).
     """
-    j0 = int(np.ceil(tip_f + stretch_mm[0] / step_mm))
-    j1 = min(int(np.floor(tip_f + stretch_mm[1] / step_mm)), fine.shape[1] - 1)
+    j0 = int(np.ceil(view.tip_f + stretch_mm[0] / step_mm))
+    j1 = min(int(np.floor(view.tip_f + stretch_mm[1] / step_mm)), view.fine.shape[1] - 1)
     if j1 - j0 < 1:
         return float("nan")
-    smooth, near = _near_tip(fine, half_mm, u, j0, j1, tip_v, r_tip_mm, margin_mm)
-    lit = smooth - fluid[j0 : j1 + 1] >= band_level * fluid[j0 : j1 + 1]
+    smooth, near = _near_tip(view, j0, j1, r_tip_mm, margin_mm)
+    fluid = view.fluid[j0 : j1 + 1]
+    lit = smooth - fluid >= band_level * fluid
     return float(np.mean((lit & near).any(axis=0)))
 
 
@@ -384,15 +368,13 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     margin = cfg.wall_margin_px / ppm
     for b in np.flatnonzero(good & ~bare & ~odd).tolist():
         e = edges[int(live[b])]
-        half_e = plan.half_mm[e.lo : e.lo + e.fine.shape[1]]
-        tip_b, v_b = float(tip_f[b]), float(tip_u[b] * half_tip[b])
-        dark = tip_darkness(e.fine, e.fluid, e.contrast, half_e, plan.u, tip_b, v_b, step, plan.r_tip_mm, margin,
-                            cfg.tip_dark_mm)
-        if dark < cfg.tip_dark_min * e.array_cover:  # NaN compares False
-            unlike[b] = True
+        view = TipView(e.fine, e.fluid, e.contrast, plan.half_mm[e.lo : e.lo + e.fine.shape[1]], plan.u,
+                       float(tip_f[b]), float(tip_u[b] * half_tip[b]))
+        if tip_darkness(view, step, plan.r_tip_mm, margin, cfg.tip_dark_mm) < cfg.tip_dark_min * e.array_cover:
+            unlike[b] = True  # NaN compares False
             out[int(live[b])] = _FAINT
-        elif not e.bubble and bright_past_tip(e.fine, e.fluid, half_e, plan.u, tip_b, v_b, step, plan.r_tip_mm, margin,
-                                              cfg.band_past_mm, cfg.band_level) >= cfg.band_past_share:
+        elif not e.bubble and bright_past_tip(view, step, plan.r_tip_mm, margin, cfg.band_past_mm,
+                                              cfg.band_level) >= cfg.band_past_share:
             unlike[b] = True
             out[int(live[b])] = _BAND_PAST
     keep = np.flatnonzero(good & ~bare & ~odd & ~unlike)
