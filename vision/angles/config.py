@@ -227,9 +227,10 @@ class MeasureConfig:
         A frame whose darkest point near the tip over ``tip_dark_mm`` (clear of the walls) is
         lighter than this share of the array's darkness just inside its inner edge is not
         measured: its dark run ends on something fainter than the array (the array's shadow
-        falling past its tip, a speck beyond a band). Of the frames it refused on videos of
-        three independent renderers not looked at while choosing it (about 1400 frames measured
-        before), 28 of 35 had their tip off by more than 0.1 rad and 7 within 0.05 rad.
+        falling past its tip, a speck beyond a band). On held-out videos (fresh seeds of two
+        independent renderers it was chosen on, and a third renderer; about 1400 frames
+        measured before), 28 of the 35 frames it refused had their tip off by more than 0.1 rad
+        and 7 were within 0.05 rad.
     band_past_mm : tuple of float
         Nearest and farthest distance (mm) past the tip of the stretch ``band_past_share``
         looks at (the nearest leaves out the tip's own blurred end).
