@@ -257,6 +257,22 @@ def bright_past_tip(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: f
     return float(np.mean((lit & near).any(axis=0)))
 
 
+def _unlike_tip(edges: Edges, tip_f: float, tip_v: float, plan: MeasurePlan) -> str | None:
+    """Why a frame's tip is not the array's end (its last stretch fainter than the array, or, no
+    bubble found, a band's brightness just past it), or None. ``tip_f`` is the tip's fractional
+    station from ``edges.lo`` and ``tip_v`` its offset (mm)."""
+    cfg = plan.cfg
+    view = TipView(edges.fine, edges.fluid, edges.contrast, plan.half_mm[edges.lo : edges.lo + edges.fine.shape[1]],
+                   plan.u, tip_f, tip_v)
+    margin = cfg.wall_margin_px / float(plan.pose.px_per_mm)
+    if tip_darkness(view, plan.step_mm, plan.r_tip_mm, margin, cfg.tip_dark_mm) < cfg.tip_dark_min * edges.array_cover:
+        return _FAINT  # NaN compares False
+    if not edges.bubble and bright_past_tip(view, plan.step_mm, plan.r_tip_mm, margin, cfg.band_past_mm,
+                                            cfg.band_level) >= cfg.band_past_share:
+        return _BAND_PAST
+    return None
+
+
 def tip_reach(array: ElectrodeArray, cfg: MeasureConfig) -> float:
     """Farthest (mm) the tip may lie past the last station with measured edges: the array's
     first band's far end from the tip (no band: nothing) plus ``cfg.band_edge_mm``, at most
@@ -363,21 +379,7 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     odd |= (n_meas >= min_count) & (rg.count(in_wall) >= cfg.tip_wall_share * n_meas)
     for b in np.flatnonzero(good & ~bare & odd):
         out[int(live[b])] = f"the dark run's last {cfg.tip_width_mm:g} mm does not look like the array (a line?)"
-    # the tip's last stretch as dark as the array, and no band's brightness just past it
-    unlike = np.zeros(len(live), dtype=bool)
-    margin = cfg.wall_margin_px / ppm
-    for b in np.flatnonzero(good & ~bare & ~odd).tolist():
-        e = edges[int(live[b])]
-        view = TipView(e.fine, e.fluid, e.contrast, plan.half_mm[e.lo : e.lo + e.fine.shape[1]], plan.u,
-                       float(tip_f[b]), float(tip_u[b] * half_tip[b]))
-        if tip_darkness(view, step, plan.r_tip_mm, margin, cfg.tip_dark_mm) < cfg.tip_dark_min * e.array_cover:
-            unlike[b] = True  # NaN compares False
-            out[int(live[b])] = _FAINT
-        elif not e.bubble and bright_past_tip(view, step, plan.r_tip_mm, margin, cfg.band_past_mm,
-                                              cfg.band_level) >= cfg.band_past_share:
-            unlike[b] = True
-            out[int(live[b])] = _BAND_PAST
-    keep = np.flatnonzero(good & ~bare & ~odd & ~unlike)
+    keep = np.flatnonzero(good & ~bare & ~odd)
     if not len(keep):
         return out
     width_ratio = _width_ratio(v_in, v_out, both, width, rg)
@@ -389,8 +391,12 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     line = point[sub] + centre[:, None] * normal[sub]
     radius = radius[sub]
     for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
-        if bands_beside(edges[int(live[b])], float(tip_f[b]), plan):
-            out[int(live[b])] = _BESIDE
+        e = edges[int(live[b])]
+        reason = _unlike_tip(e, float(tip_f[b]), float(tip_u[b] * half_tip[b]), plan)
+        if reason is None and bands_beside(e, float(tip_f[b]), plan):
+            reason = _BESIDE
+        if reason is not None:
+            out[int(live[b])] = reason
             continue
         a = slice(s0, s0 + m_b)
         out[int(live[b])] = CentreLine(float(tip_f[b]), tip_mm[b], line[a], gap[a], radius[a], ok[a],

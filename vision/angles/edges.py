@@ -34,8 +34,8 @@ class Edges:
     ``fine`` the strip (grey levels), ``fluid`` and ``contrast`` per station (grey levels),
     ``seed`` darkest offset, ``v_in``/``v_out`` edge offsets (mm) and ``ok_in``/``ok_out``
     where they are the array body's, ``level`` the coverage half way between the fluid and
-    the array beside it, ``bubble`` whether an air bubble was found at or ahead of the tip,
-    ``array_cover`` the array's coverage just inside its inner edge (1: the survey's contrast).
+    the array beside it, ``array_cover`` the array's coverage just inside its inner edge (1:
+    the survey's contrast), ``bubble`` whether an air bubble was found at or ahead of the tip.
     """
 
     lo: int
@@ -49,8 +49,8 @@ class Edges:
     ok_in: np.ndarray
     ok_out: np.ndarray
     level: float
+    array_cover: float
     bubble: bool = False
-    array_cover: float = 1.0
 
 
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
@@ -343,5 +343,5 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         a = slice(s, s + m)
         out.append(Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
                           v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b])),
-                          bool(bubble[b]), float(c_a[b])))
+                          float(c_a[b]), bool(bubble[b])))
     return out
