@@ -1005,6 +1005,112 @@ def test_dark_wider_than_the_array_is_not_used() -> None:
     assert v_c[0] == pytest.approx(-0.05 + radius[0]) and v_c[3] == pytest.approx(0.05 - radius[3])
 
 
+def _profiles(m: int, spans: list[list[tuple[int, int, float]]], blur: float = 1.0) -> np.ndarray:
+    """Coverage across the channel (offsets × stations): each station's (first, last, level)
+    spans over fluid (0), blurred along the offsets by ``blur`` (offsets, Gaussian)."""
+    cover = np.zeros((m, len(spans)), np.float32)
+    for k, station in enumerate(spans):
+        for first, last, level in station:
+            cover[first : last + 1, k] = level
+    return cv2.GaussianBlur(cover, (1, 0), sigmaX=1e-6, sigmaY=blur)
+
+
+def test_a_shadows_core_is_found_and_a_highlight_is_not() -> None:
+    """Profiles across the channel, blurred by 1 offset: (0) the array (1.0, offsets 20-39)
+    with its shadow (0.6, offsets 10-19) beside its inner side: the core's inner edge lies at
+    the step between them; (1) a lit array (1.0) with a highlight (0.6) along its middle: no
+    core, the array's other side lies beyond the highlight; (2) an array lit from one side,
+    its outer third lighter (0.6): a core on that side only (the centre line tells it from a
+    shadow by the width); (3) a plain array: no core; (4) a shelf one offset wide: too narrow."""
+    from tympani.vision.angles.edges import _cumulative, _nearest_below, _shelf_edges
+
+    m = 60
+    cover = _profiles(m, [[(10, 19, 0.6), (20, 39, 1.0)], [(10, 17, 1.0), (18, 24, 0.6), (25, 34, 1.0)],
+                          [(10, 24, 1.0), (25, 31, 0.6)], [(10, 29, 1.0)], [(19, 19, 0.6), (20, 39, 1.0)]])
+    n = cover.shape[1]
+    seed = np.array([30, 12, 15, 20, 30])
+    low, high = (_nearest_below(cover, seed, np.full(n, 0.5), side) for side in (0, 1))
+    clear = np.vstack([np.full(n, 2.0), np.full(n, m - 3.0)])
+    core_in, core_out = _shelf_edges(cover, _cumulative(cover, n), seed, low, high, clear, np.full(n, 2.0),
+                                     MeasureConfig())
+    assert core_in[0] == pytest.approx(19.5, abs=0.3) and np.isnan(core_out[0])
+    assert np.isnan(core_in[1]) and np.isnan(core_out[1])
+    assert np.isnan(core_in[2]) and core_out[2] == pytest.approx(24.5, abs=0.3)
+    assert np.isnan(core_in[3:]).all() and np.isnan(core_out[3:]).all()
+
+
+def test_a_core_replaces_the_dark_only_where_it_has_the_arrays_width() -> None:
+    """Stations of a 0.6 mm array (half-width 0.3 mm) in a channel 1.2 mm wide: (0) against the
+    outer wall with a shadow 0.35 mm wide beside its inner side (dark from -0.65 mm to the wall,
+    core from -0.02 mm): the core is used; (1) the dark has the array's width and its core is
+    narrower (an array lit from one side): not used; (2) a core much narrower than the array:
+    not used; (3) the core hardly nearer the array's width than the dark (0.49 against 0.72
+    mm): not used; (4) no core."""
+    from tympani.vision.angles.centreline import _core_where_wider
+
+    nan = float("nan")
+    v_in = np.array([-0.65, -0.3, -0.6, -0.15, -0.3])
+    v_out = np.array([nan, 0.3, 0.2, nan, 0.3])
+    core_in = np.array([-0.02, nan, 0.0, 0.0, nan])
+    core_out = np.array([nan, 0.15, 0.2, 0.49, nan])
+    ok_in, ok_out = np.isfinite(v_in), np.isfinite(v_out)
+    n = len(v_in)
+    a, b, ok_a, ok_b = _core_where_wider(v_in, v_out, ok_in, ok_out, core_in, core_out, np.full(n, 0.6),
+                                         np.full(n, 0.3), np.full(n, 0.09), np.full(n, 0.5), 0.5)
+    assert a[0] == -0.02 and ok_a[0] and not ok_b[0]
+    np.testing.assert_array_equal(a[1:], v_in[1:])
+    np.testing.assert_array_equal(b[1:], v_out[1:])
+
+
+def _shadowed_frame(theta_tip: float, theta_bot: float, ppm: float, darkness: float | None = None
+                    ) -> tuple[np.ndarray, CameraPose, object, ElectrodeArray, float]:
+    """A frame drawn here (:func:`_draw_independent`'s way) with the array's shadow on the
+    fluid: the array's own outline moved 0.3-0.45 mm in a random direction in the image,
+    ``darkness`` (default 0.5-0.75, random) of the way from the fluid to the array's grey."""
+    rng = np.random.default_rng(int(theta_tip * 10) + int(ppm))
+    pose, thickness, radius, line, truth, array = _wall_riding_array(rng, theta_tip, theta_bot, ppm, 0.7)
+    angle, shift = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(0.3, 0.45) * pose.px_per_mm
+    dark = rng.uniform(0.5, 0.75) if darkness is None else darkness
+    img = _channel_image(pose)
+    body = _array_mask(pose, line, radius, thickness)
+    move = np.float32([[1, 0, shift * np.cos(angle)], [0, 1, shift * np.sin(angle)]])
+    shadow = cv2.warpAffine(body, move, (W, H))
+    img = img - dark * shadow * (img > 150) * (img - 55.0)  # on the fluid only
+    img = img * (1 - body) + 55.0 * body
+    band = _band_cover(pose, line, radius, 0.45 + 0.8 * np.arange(12), 0.25)
+    img = img * (1 - band) + 150.0 * band
+    frame = np.clip(cv2.GaussianBlur(img, (0, 0), 0.7) + rng.normal(0.0, 3.0, img.shape), 0, 255).astype(np.uint8)
+    return frame, pose, truth, array, dark
+
+
+def test_the_arrays_shadow_beside_it_is_not_taken_for_the_array() -> None:
+    """The array along the outer wall with its shadow (0.5-0.75 as dark as the array, moved
+    0.3-0.45 mm) on the fluid beside it, 12 frames drawn here at 15, 25 and 35 px/mm. The
+    shadow widens the dark beside the array's inner side, so the array was placed off the
+    wall by up to the shadow's width (gaps of 0.1-0.2 mm where it touches) or the frame was
+    refused: 8 of 12 measured, 2 with theta_bot 1.3 and 1.7 rad off. With the darker core
+    taken where its width is the array's: 10 of 12 measured, theta_bot within 0.11 rad, the
+    tip within 0.002 rad but at 15 px/mm (0.09 and 0.13 rad: the shadow past the tip, 0.55-0.75
+    as dark as the array, is taken for its end)."""
+    off = MeasureConfig(core_closer=-1.0)  # the dark's edges only
+    tip, bot, measured_before, gross_before = [], [], 0, 0
+    for theta_tip, theta_bot in [(2.2, 1.8), (3.3, 2.2), (4.5, 2.6), (5.6, 3.4)]:
+        for ppm in (15.0, 25.0, 35.0):
+            frame, pose, truth, array, _ = _shadowed_frame(theta_tip, theta_bot, ppm)
+            m = measure_frame(frame, _reg(pose), array=array)
+            if m.ok:
+                tip.append((ppm, abs(m.theta_tip - truth.theta_tip)))
+                bot.append(abs(m.theta_bot - truth.theta_bot))
+            before = measure_frame(frame, _reg(pose), array=array, cfg=off)
+            measured_before += before.ok
+            gross_before += before.ok and abs(before.theta_con - truth.theta_con) > 0.5
+    assert measured_before <= 9 and gross_before >= 2  # the scenario is the failure the change fixes
+    assert len(bot) >= 10, len(bot)
+    assert max(bot) <= 0.15, bot
+    assert max(e for p, e in tip if p > 20.0) <= 0.005, tip
+    assert max(e for _, e in tip) <= 0.15, tip
+
+
 def test_contact_start_holds_under_motion_blur_and_compression() -> None:
     """Blur along the insertion (3-8 px) and JPEG quality 30-60 widen the measured gap along the
     whole array by some hundredths of a millimetre, so a contact run read against the bare

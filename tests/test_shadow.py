@@ -85,7 +85,8 @@ def _edges_and_plan(n: int, extent: int, beside: np.ndarray | None):
         fine = np.where(np.abs(offset - 0.45) <= 0.05, beside[None, :extent], fine)
     v = np.full(n, 0.3)
     edges = Edges(lo, n, fine.astype(np.float32), np.full(extent, 200.0), np.full(extent, 100.0),
-                  np.zeros(extent, int), -v, v, np.ones(n, bool), np.ones(n, bool), 0.5, 1.0)
+                  np.zeros(extent, int), -v, v, np.ones(n, bool), np.ones(n, bool), np.full(n, np.nan),
+                  np.full(n, np.nan), 0.5, 1.0)
     return edges, plan
 
 

@@ -51,21 +51,27 @@ def _right(pose: CameraPose, shift: tuple[float, float]) -> Registration:
                         second_copy_contrast=0.8)
 
 
-@pytest.mark.parametrize("seed", [11, 12, 13, 14, 15, 16])
+@pytest.mark.parametrize("seed", range(11, 21))
 def test_the_copy_the_array_touches_is_kept(tmp_path: Path, seed: int) -> None:
-    """Given the true copy, the extraction keeps it: the array never says otherwise."""
+    """Given the true copy, the extraction keeps it: the array never says otherwise. The other
+    copy's line runs beside the array, a lighter shelf the array's darker core is told from
+    (when written, seeds 11-20: no frame with theta_con off by more than 0.5 rad, 9-23 of the
+    23 frames measured; with the dark's edges only, ``MeasureConfig(core_closer=-1)``, 18 such
+    frames on five of the ten seeds)."""
     path, pose, shift, truth = _video(tmp_path, seed)
     kept, _ = extract_video(path, ExtractConfig(), steps=_steps(_right(pose, shift)))
     assert not any("other copy" in w for w in kept.attrs["warnings"])
     assert kept.attrs["registrations"][0]["centre_x_px"] == pose.centre_x_px
     assert (truth["theta_con"] > 0.05).to_numpy()[kept["ok"].to_numpy()].sum() >= 5
+    ok = kept["ok"].to_numpy()
+    assert ((kept["theta_con"] - truth["theta_con"]).abs().to_numpy()[ok] <= 0.5).all()
 
 
-@pytest.mark.parametrize("seed", [11, 13, 18])
+@pytest.mark.parametrize("seed", [11, 13, 17])
 def test_a_registration_on_the_copy_the_array_does_not_touch_is_measured_again(tmp_path: Path, seed: int) -> None:
     """Given the registration of the wrong copy (the true pose moved by the parallax), the
     extraction switches to the true one and measures every frame as it does given the true
-    copy. (Of seeds 11-20, 11, 13 and 18 switch: on the wrong copy the tip stands off the
+    copy. (Of seeds 11-20, 11, 13 and 17 switch: on the wrong copy the tip stands off the
     wall, or the array crosses it, past half a turn. In the others too few frames there say
     so: the tip touches both copies' walls, where only the contact run's length differs, which
     is no evidence, or the frame is refused (on 12 every frame past half a turn; on 14 enough

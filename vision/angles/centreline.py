@@ -111,6 +111,66 @@ def _dark_excess(v_in: np.ndarray, v_out: np.ndarray, ok_in: np.ndarray, ok_out:
     return np.where((rg.count(use) >= min_count) & (excess > noise_mm), excess, 0.0)
 
 
+def _misfit(v_in: np.ndarray, v_out: np.ndarray, ok_in: np.ndarray, ok_out: np.ndarray, visible: np.ndarray,
+            slack: np.ndarray, clear_mm: np.ndarray, widen: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the dark between the edges (mm; ``ok_in``/``ok_out`` where seen) is narrower than
+    the array's ``2 * visible`` (mm) less ``slack`` (mm; cut by a band's border), and where it is
+    wider than that times ``widen`` plus ``slack`` (crowded: from the one edge seen, out to the
+    other wall's margin ``clear_mm``, mm)."""
+    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - slack)
+    wide = 2.0 * visible * widen + slack
+    crowded = (ok_in & ~ok_out & (clear_mm - v_in > wide)) | (ok_out & ~ok_in & (v_out + clear_mm > wide)) | (
+        ok_in & ok_out & (v_out - v_in > wide))
+    return cut, crowded
+
+
+def _core_where_wider(v_in: np.ndarray, v_out: np.ndarray, ok_in: np.ndarray, ok_out: np.ndarray,
+                      core_in: np.ndarray, core_out: np.ndarray, half: np.ndarray, visible: np.ndarray,
+                      slack: np.ndarray, clear_mm: np.ndarray, closer: float) -> tuple[np.ndarray, ...]:
+    """The edges, with a darker core's (``core_in``/``core_out``, mm, NaN where it has none on
+    that side) taken in where its width is nearer the array's (``2 * visible``, mm; the dark
+    out to the wall where one edge is not seen) than ``closer`` times the dark's own is: the
+    lighter shelf beside the core is a shadow, not the array. Where the dark has about the
+    array's width, a core inside it is the darker part of an array lit from one side and stays
+    unused, as does a core whose width the array cannot have (:func:`_misfit`).
+
+    Parameters
+    ----------
+    v_in, v_out : ndarray, shape (n,)
+        The dark's edges (mm).
+    ok_in, ok_out : ndarray, shape (n,), bool
+        Where they were seen.
+    core_in, core_out : ndarray, shape (n,)
+        The core's edges (mm), NaN where it has none on that side.
+    half : ndarray, shape (n,)
+        The channel's half-width (mm).
+    visible : ndarray, shape (n,)
+        The array's half-width (mm).
+    slack : ndarray, shape (n,)
+        Width tolerance (mm; :func:`_misfit`).
+    clear_mm : ndarray, shape (n,)
+        Offset (mm) of the last place clear of each wall.
+    closer : float
+        Largest ratio (dimensionless) of the core's width error to the dark's.
+
+    Returns
+    -------
+    v_in, v_out, ok_in, ok_out : ndarray
+        The edges (mm) and where they were seen.
+    """
+    seen = ok_in | ok_out
+    has_in, has_out = np.isfinite(core_in), np.isfinite(core_out)
+    c_in, c_out = np.where(has_in, core_in, v_in), np.where(has_out, core_out, v_out)
+    c_ok_in, c_ok_out = np.where(has_in, seen, ok_in), np.where(has_out, seen, ok_out)
+    cut, crowded = _misfit(c_in, c_out, c_ok_in, c_ok_out, visible, slack, clear_mm, 1.0)
+    width = 2.0 * visible
+    error_dark = np.abs(np.where(ok_out, v_out, half) - np.where(ok_in, v_in, -half) - width)
+    error_core = np.abs(np.where(c_ok_out, c_out, half) - np.where(c_ok_in, c_in, -half) - width)
+    swap = (has_in | has_out) & ~cut & ~crowded & (error_core <= closer * error_dark)
+    return (np.where(swap, c_in, v_in), np.where(swap, c_out, v_out), np.where(swap, c_ok_in, ok_in),
+            np.where(swap, c_ok_out, ok_out))
+
+
 def _centre_offsets(
     v_in: np.ndarray,
     v_out: np.ndarray,
@@ -166,11 +226,7 @@ def _centre_offsets(
         The array's radius (mm) at each station.
     """
     visible, radius = _half_widths(s, stretch, array)
-    slack = np.maximum(tol_mm, 0.3 * visible)
-    cut = ok_in & ok_out & (v_out - v_in < 2.0 * visible - slack)
-    wide = 2.0 * visible * widen + slack
-    crowded = (ok_in & ~ok_out & (clear_mm - v_in > wide)) | (ok_out & ~ok_in & (v_out + clear_mm > wide)) | (
-        ok_in & ok_out & (v_out - v_in > wide))
+    cut, crowded = _misfit(v_in, v_out, ok_in, ok_out, visible, np.maximum(tol_mm, 0.3 * visible), clear_mm, widen)
     use_in = ok_in & ~cut & ~crowded
     use_out = ok_out & ~ok_in & ~cut & ~crowded
     v_c = np.where(use_in, v_in + visible, v_out - visible)
@@ -303,14 +359,19 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     rg = Ragged.of([e.n for e in edges])
     lo = np.array([e.lo for e in edges], dtype=np.intp)
     station = lo[rg.row] + rg.local
-    v_in, v_out, ok_in, ok_out = (np.concatenate([getattr(e, name) for e in edges])
-                                  for name in ("v_in", "v_out", "ok_in", "ok_out"))
+    v_in, v_out, ok_in, ok_out, core_in, core_out = (np.concatenate([getattr(e, name) for e in edges])
+                                                     for name in ("v_in", "v_out", "ok_in", "ok_out", "core_in",
+                                                                  "core_out"))
     # pass 1: distance from the tip along the backbone, array parallel to the channel
     s = plan.p_mm[lo + rg.n - 1][rg.row] - plan.p_mm[station]
     clear = plan.half_mm[station] - cfg.wall_margin_px / ppm
+    visible = _half_widths(s, np.ones(len(s)), array)[0]
+    # a darker core's edges where they give the array's width better than the dark's: a shadow
+    v_in, v_out, ok_in, ok_out = _core_where_wider(v_in, v_out, ok_in, ok_out, core_in, core_out,
+                                                   plan.half_mm[station], visible, np.maximum(tol, 0.3 * visible),
+                                                   clear, cfg.core_closer)
     # an array wider than modelled is not crowded by its own width
-    widen = np.fmax(_width_ratio(v_in, v_out, ok_in & ok_out & (s >= plan.r_tip_mm),
-                                 2.0 * _half_widths(s, np.ones(len(s)), array)[0], rg), 1.0)[rg.row]
+    widen = np.fmax(_width_ratio(v_in, v_out, ok_in & ok_out & (s >= plan.r_tip_mm), 2.0 * visible, rg), 1.0)[rg.row]
     v_c, measured, _ = _centre_offsets(v_in, v_out, ok_in, ok_out, s, np.ones(len(s)), array, cfg.cap_min, tol, clear,
                                        widen)
     live = np.flatnonzero(rg.count(measured) >= 3)

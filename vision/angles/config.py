@@ -194,6 +194,17 @@ class MeasureConfig:
     plateau_px : tuple of float
         Nearest and farthest distance (px) from the array's inner edge of the samples whose
         coverage gives the local fluid and array levels the edge is relocated between.
+    core_share, shelf_min, shelf_step, shelf_mm : float
+        A shadow beside the array: where, out from the darkest offset, the coverage falls below
+        ``core_share`` (dimensionless) of the darkest's and then stays on a lighter shelf out
+        to the dark's edge, at least ``shelf_mm`` (mm, and 2 px) wide, at least ``shelf_min``
+        dark and at least ``shelf_step`` lighter than the darkest (coverage, 0 fluid, 1
+        array), the darker core's edge lies half way between the two.
+    core_closer : float
+        The core's edges are used in place of the dark's where the core's width is nearer the
+        array's than this fraction (dimensionless) of the dark's distance from it: a shadow
+        widens the dark by its own width, the lighter side of an array lit from one side makes
+        the core narrower than the array while the dark has the array's width.
     tip_reach_mm : float
         Farthest (mm) the centre line is extrapolated from the last station with measured edges
         to the tip; a frame whose dark run goes on farther is not measured (what continues it
@@ -331,6 +342,11 @@ class MeasureConfig:
     gap_smooth_mm: float = 0.4
     outlier_px: float = 1.5
     plateau_px: tuple[float, float] = (2.5, 4.0)
+    core_share: float = 0.9
+    shelf_min: float = 0.25
+    shelf_mm: float = 0.05
+    shelf_step: float = 0.15
+    core_closer: float = 0.5
     tip_reach_mm: float = 1.5
     band_edge_mm: float = 0.3
     tip_width_mm: float = 2.0

@@ -15,6 +15,7 @@ import numpy as np
 
 from tympani.vision.angles.arrays import accumulate_rows, median, odd_ceil, take2d
 from tympani.vision.angles.bubbles import bubble_end, with_compact
+from tympani.vision.angles.config import MeasureConfig
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import (
     Ragged,
@@ -33,9 +34,11 @@ class Edges:
 
     ``fine`` the strip (grey levels), ``fluid`` and ``contrast`` per station (grey levels),
     ``seed`` darkest offset, ``v_in``/``v_out`` edge offsets (mm) and ``ok_in``/``ok_out``
-    where they are the array body's, ``level`` the coverage half way between the fluid and
-    the array beside it, ``array_cover`` the array's coverage just inside its inner edge (1:
-    the survey's contrast), ``bubble`` whether an air bubble was found at or ahead of the tip.
+    where they are the array body's, ``core_in``/``core_out`` the edges (mm) of a darker core
+    with a lighter shelf beyond it out to the dark's edge (NaN where none; :func:`_shelf_edges`),
+    ``level`` the coverage half way between the fluid and the array beside it, ``array_cover``
+    the array's coverage just inside its inner edge (1: the survey's contrast), ``bubble``
+    whether an air bubble was found at or ahead of the tip.
     """
 
     lo: int
@@ -48,6 +51,8 @@ class Edges:
     v_out: np.ndarray
     ok_in: np.ndarray
     ok_out: np.ndarray
+    core_in: np.ndarray
+    core_out: np.ndarray
     level: float
     array_cover: float
     bubble: bool = False
@@ -213,18 +218,101 @@ def _relevel(cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, level: np.n
     return np.where(found, j0 + k + t, edge)
 
 
-def _fill(cover: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+def _nearest_below(cover: np.ndarray, seed: np.ndarray, level: np.ndarray, side: int) -> np.ndarray:
+    """Sub-pixel offset nearest ``seed`` below it (``side`` 0) or above it (``side`` 1) where the
+    coverage falls below a per-station ``level`` (shape (n,)); NaN where it does not."""
+    m, n = cover.shape[0], len(seed)
+    j = np.arange(m, dtype=np.int16)[:, None]  # small integer types keep these passes fast
+    below = cover[:, :n] < level[None, :]
+    if side == 0:
+        idx = ((below & (j < seed.astype(np.int16)[None, :])) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1
+    else:
+        idx = m - ((below & (j > seed.astype(np.int16)[None, :])) * (np.int16(m) - j)).max(axis=0).astype(np.intp)
+    step = 1 if side == 0 else -1
+    out = np.full(n, np.nan)
+    ok = (idx >= 0) & (idx < m)  # idx + step lies towards the seed, inside the strip
+    cols = np.arange(n)[ok]
+    a = take2d(cover, idx[ok], cols)  # below the level
+    b = take2d(cover, idx[ok] + step, cols)  # at or above it
+    t = np.clip((level[ok] - a) / np.where(np.abs(b - a) < 1e-6, 1e-6, b - a), 0.0, 1.0)
+    out[ok] = idx[ok] + step * t
+    return out
+
+
+def _shelf_edges(cover: np.ndarray, cumulative: np.ndarray, seed: np.ndarray, low: np.ndarray, high: np.ndarray,
+                 clear: np.ndarray, shelf_px: np.ndarray, cfg: MeasureConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The edges of a darker core inside the dark where a lighter shelf lies beside it, out to
+    the dark's edge: the array's shadow beside it, or the lighter side of an array lit from one
+    side (:func:`~tympani.vision.angles.centreline.centre_line_batch` tells the two apart by
+    the array's width).
+
+    The core ends where the coverage falls below ``cfg.core_share`` of the seed's. Beyond it,
+    out to the dark's edge (``low``, ``high``; where none was found, the wall's margin
+    ``clear``), lies the shelf: at least ``shelf_px`` offsets wide, its mean coverage at least
+    ``cfg.shelf_min`` and at least ``cfg.shelf_step`` below the seed's. The core's edge is where
+    the coverage crosses half way between the two, with no return above that level out to the
+    dark's edge (a highlight along the array's middle has the array's other side beyond it).
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, k)
+        Coverage (0 fluid, 1 array), offsets × stations (``k >= len(seed)``).
+    cumulative : ndarray, shape (m + 1, n)
+        Its running sums (:func:`_cumulative`).
+    seed : ndarray, shape (n,), int
+        The darkest offset at each station.
+    low, high : ndarray, shape (n,)
+        The dark's edges (fractional offset indices; NaN: none).
+    clear : ndarray, shape (2, n)
+        The first offset index clear of the inner wall and the last clear of the outer one.
+    shelf_px : ndarray, shape (n,)
+        Least width (offsets) of a shelf.
+    cfg : MeasureConfig
+        ``core_share``, ``shelf_min``, ``shelf_step``.
+
+    Returns
+    -------
+    low, high : ndarray, shape (n,)
+        The core's edges (fractional offset indices), NaN where no shelf lies beyond them.
+    """
+    m, n = cover.shape[0], len(seed)
+    j = np.arange(m, dtype=np.float32)[:, None]
+    peak = take2d(cover, seed, np.arange(n))
+    out = []
+    for side, (edge, stop, sign) in enumerate(((low, clear[0], -1.0), (high, clear[1], 1.0))):
+        core = _nearest_below(cover, seed, cfg.core_share * peak, side)
+        outer = np.where(np.isfinite(edge), edge, stop)
+        shelf = _fill(cumulative, *((outer, core) if side == 0 else (core, outer)))
+        use = (shelf >= cfg.shelf_min) & (peak - shelf >= cfg.shelf_step) & (sign * (outer - core) >= shelf_px)
+        level = 0.5 * (peak + shelf)
+        found = np.where(use, _nearest_below(cover, seed, level, side), np.nan)
+        # out to the dark's edge the coverage stays below that level (a highlight does not)
+        lo, hi = (outer, found - 0.5) if side == 0 else (found + 0.5, outer)
+        between = (j > np.nan_to_num(lo, nan=np.inf)[None, :]) & (j < np.nan_to_num(hi, nan=-np.inf)[None, :])
+        use &= np.isfinite(found) & ~(between & (cover[:, :n] >= level[None, :])).any(axis=0)  # NaN compares False
+        out.append(np.where(use, found, np.nan))
+    return out[0], out[1]
+
+
+def _cumulative(cover: np.ndarray, n: int) -> np.ndarray:
+    """Running sums of the coverage of the first ``n`` stations along the offsets, shape
+    (m + 1, n), a row of zeros first (for :func:`_fill`)."""
+    cs = np.zeros((cover.shape[0] + 1, n))
+    cs[1:] = accumulate_rows(np.add, cover[:, :n])
+    return cs
+
+
+def _fill(cumulative: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Mean coverage between the edges ``low`` and ``high`` (fractional offset indices) at each
-    station (NaN where an edge is missing)."""
-    m, n = cover.shape[0], len(low)
+    station (NaN where an edge is missing), from the running sums ``cumulative``
+    (:func:`_cumulative`)."""
+    m, n = cumulative.shape[0] - 1, len(low)
     ok = np.isfinite(low) & np.isfinite(high)
     a = np.clip(np.where(ok, np.ceil(low), 0), 0, m - 1).astype(np.intp)
     b = np.clip(np.where(ok, np.floor(high), 0), 0, m - 1).astype(np.intp)
     ok &= b >= a
-    cs = np.zeros((m + 1, n))
-    cs[1:] = accumulate_rows(np.add, cover[:, :n])
     cols = np.arange(n)
-    mean = (take2d(cs, b + 1, cols) - take2d(cs, a, cols)) / np.maximum(b - a + 1, 1)
+    mean = (take2d(cumulative, b + 1, cols) - take2d(cumulative, a, cols)) / np.maximum(b - a + 1, 1)
     return np.where(ok, mean, np.nan)
 
 
@@ -332,16 +420,21 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         smooth[sub] = 0.5 * (lf + la)
         level = np.where(near, smooth, level)
     low = _relevel(cover, low, np.isfinite(low), level)
+    clear = np.vstack([wall, 2.0 * (-u0 / du) - wall])  # the margins clear of either wall (offsets)
+    cumulative = _cumulative(cover, len(low))
+    core_low, core_high = _shelf_edges(cover, cumulative, seed_a, low, high, clear,
+                                       np.maximum(2.0, cfg.shelf_mm * ppm) / px, cfg)
     cf, ca = c_f[arr.row], c_a[arr.row]
     body = erode_ragged((dark_a - cf) / (ca - cf) >= cfg.body_level, arr, cfg.border_px)
     v_in, v_out = (u0 + du * low) * half, (u0 + du * high) * half
-    fill = _fill(cover, low, high)
+    core_in, core_out = (u0 + du * core_low) * half, (u0 + du * core_high) * half
+    fill = _fill(cumulative, low, high)
     body &= ~_unfilled(fill, body, arr, cfg.body_fill)[arr.row]  # not dark between its edges: no array
     ok_in, ok_out = body & (v_in >= -half), body & (v_out <= half)  # NaN compares False
     out = []
     for b, (s0, w, s, m) in enumerate(zip(strip.start.tolist(), extent.tolist(), arr.start.tolist(), arr.n.tolist())):
         a = slice(s, s + m)
         out.append(Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
-                          v_in[a], v_out[a], ok_in[a], ok_out[a], 0.5 * (float(c_f[b]) + float(c_a[b])),
-                          float(c_a[b]), bool(bubble[b])))
+                          v_in[a], v_out[a], ok_in[a], ok_out[a], core_in[a], core_out[a],
+                          0.5 * (float(c_f[b]) + float(c_a[b])), float(c_a[b]), bool(bubble[b])))
     return out
