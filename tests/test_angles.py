@@ -850,6 +850,31 @@ def test_a_bubble_beside_the_tip_off_its_path_is_not_taken() -> None:
     assert bubble_end(cover, dark, seed, inside, last, step, offset, 0.6, cfg) == (last, None)
 
 
+def test_a_small_round_interior_fills_its_box_and_is_still_a_bubble() -> None:
+    """A bubble's bright interior blurred and thresholded at 8 x 9 px fills 93 % of its box (as
+    on a 0.5 mm bubble at 17 px/mm): it may be a bubble's. A larger one as square (a band's
+    interior, a rectangle) may not, and a large round one (a disc 16 px across) may."""
+    from tympani.vision.angles.bubbles import _compact
+
+    cfg, step, offset = MeasureConfig(), 0.06, 0.042  # mm per station and per offset
+    m, n = 60, 100
+
+    def stats(mask: np.ndarray) -> tuple[np.ndarray, ...]:
+        _, _, st, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=4)
+        return tuple(st[1:2, k] for k in range(5))
+
+    small = np.zeros((m, n), bool)
+    small[20:29, 40:48] = True
+    small[[20, 20, 28, 28, 20], [40, 47, 40, 47, 41]] = False  # its corners cut: 67 of 72
+    square = np.zeros((m, n), bool)
+    square[15:30, 40:55] = True
+    yy, xx = np.mgrid[:m, :n]
+    disc = (yy - 30) ** 2 + (xx - 50) ** 2 <= 8**2
+    for mask, expected in ((small, True), (square, False), (disc, True)):
+        x, y, w, h, area = stats(mask)
+        assert bool(_compact(x, y, w, h, area, m, n, step, offset, cfg)[0]) is expected, (w, h, area)
+
+
 def _narrow_bubble_ahead(gap_mm: float) -> tuple[np.ndarray, int, float, float]:
     """Coverage (0 fluid, 1 array; offsets x stations, 0.026 x 0.034 mm) of an array 0.6 mm wide
     ending at station 100, then ``gap_mm`` of fluid, then a bubble no wider than the array (rim

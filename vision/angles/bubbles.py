@@ -59,7 +59,8 @@ def _compact(x: np.ndarray, y: np.ndarray, w: np.ndarray, h: np.ndarray, area: n
     len_mm, wid_mm = w * step_mm, h * offset_mm
     return ((x > 0) & (x + w < n) & (y > 0) & (y + h < m) & (area * (step_mm * offset_mm) >= cfg.bubble_min_mm2)
             & (np.maximum(len_mm, wid_mm) <= 2.0 * cfg.bubble_max_mm)
-            & (area >= cfg.bubble_fill[0] * w * h) & (area <= cfg.bubble_fill[1] * w * h)
+            & (area >= cfg.bubble_fill[0] * w * h)
+            & ((area <= cfg.bubble_fill[1] * w * h) | (np.minimum(w, h) < cfg.bubble_round_px))
             & (len_mm <= cfg.bubble_aspect * wid_mm) & (wid_mm <= cfg.bubble_aspect * len_mm))
 
 

@@ -128,7 +128,12 @@ class MeasureConfig:
         Largest radius (mm) of a bubble's interior.
     bubble_fill : tuple of float
         Least and largest share (dimensionless) of its bounding box a bubble's interior fills (a
-        disc: 0.79; a band, a rectangle: about 1).
+        disc: 0.79; a band, a rectangle: about 1). The largest applies only to interiors at
+        least ``bubble_round_px`` across both ways.
+    bubble_round_px : int
+        Least extent (px, along and across the channel) of an interior whose fill tells a disc
+        from a rectangle: a smaller disc, blurred and thresholded, fills nearly all of its
+        bounding box (8 × 9 px: 0.93).
     bubble_wider : float
         Width (dimensionless, times the array's tip diameter) above which an enclosed bright
         region cannot be a band.
@@ -324,6 +329,7 @@ class MeasureConfig:
     bubble_min_mm2: float = 0.02
     bubble_max_mm: float = 0.9
     bubble_fill: tuple[float, float] = (0.5, 0.9)
+    bubble_round_px: int = 10
     bubble_aspect: float = 2.5
     bubble_wider: float = 1.15
     bubble_rim_mm: float = 0.2
