@@ -329,6 +329,66 @@ def _unlike_tip(edges: Edges, tip_f: float, tip_v: float, plan: MeasurePlan) -> 
     return None
 
 
+def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, tip: float, track: float,
+              offset_mm: np.ndarray, widest_mm: float, bright: float) -> float | None:
+    """Where the array ends when the dark past a gap of fluid beyond it is narrower than it can
+    be (a speck or a thin shadow beside the channel's wall, not the cap beyond a band): the first
+    fall of the coverage along the track below ``level`` from station ``start`` on, where it
+    rises again before ``tip`` (the last fall), the gap is plain fluid (nowhere brighter than it
+    by ``bright``: a metal band is) and the dark beyond is nowhere wider than ``widest_mm``; None
+    otherwise.
+
+    Parameters
+    ----------
+    cover : ndarray, shape (m, k)
+        Coverage (0 fluid, 1 array), offsets × stations of the tail.
+    along : ndarray, shape (k,)
+        Coverage along the track.
+    level : float
+        The tip's crossing level.
+    start : int
+        First station of the tail sought (the last with measured edges).
+    tip : float
+        The tip's fractional station (the last fall).
+    track : float
+        The track's fractional offset index.
+    offset_mm : ndarray, shape (k,)
+        Offset spacing (mm) at each station.
+    widest_mm : float
+        Widest (mm) the dark past the gap may be.
+    bright : float
+        Coverage below zero (brighter than the fluid) of a metal band.
+
+    Returns
+    -------
+    float or None
+        Fractional station of the first fall.
+    """
+    above = along >= level
+    end = int(np.floor(tip))
+    falls = np.flatnonzero(above[start:end] & ~above[start + 1 : end + 1]) + start
+    if not len(falls):
+        return None
+    fall = int(falls[0])
+    rises = np.flatnonzero(above[fall + 1 : end + 1]) + fall + 1
+    if not len(rises) or along[fall + 1 : rises[0]].min() < -bright:  # a band's brightness: the array goes on
+        return None
+    m = cover.shape[0]
+    row = min(max(int(round(track)), 0), m - 1)
+    widest = 0.0
+    for j in range(int(rises[0]), end + 1):  # the dark run across the track at each station beyond
+        dark = cover[:, j] >= level
+        if not dark[row]:
+            continue
+        lo = row - int(np.argmin(dark[row::-1])) if not dark[: row + 1].all() else -1
+        hi = row + int(np.argmin(dark[row:])) if not dark[row:].all() else m
+        widest = max(widest, (hi - lo - 1) * float(offset_mm[j]))
+    if widest > widest_mm:
+        return None
+    a, b = along[fall], along[fall + 1]
+    return fall + min(max((a - level) / max(a - b, 1e-6), 0.0), 1.0)
+
+
 def tip_reach(array: ElectrodeArray, cfg: MeasureConfig) -> float:
     """Farthest (mm) the tip may lie past the last station with measured edges: the array's
     first band's far end from the tip (no band: nothing) plus ``cfg.band_edge_mm``, at most
@@ -415,6 +475,21 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     along = (fluid - (sampled[0] + sampled[1] + sampled[2]) / 3.0) / contrast
     level = np.array([edges[b].level for b in live.tolist()])
     tip_f = k0 + tip_crossing_ragged(along, level, (n - 1 - k0).astype(float), tail)
+    # a speck past a gap of fluid beyond the array's end is not more array
+    widest = cfg.speck_share * 2.0 * plan.r_tip_mm
+    track = (tip_u - u0) / du
+    rows = np.clip(track[:, None] + np.array([-1.0, 0.0, 1.0]), 0, m - 1.001)
+    for i in np.flatnonzero(tip_f > last + 3.0).tolist():  # room for the array's end, a gap and more
+        e, s0 = edges[int(live[i])], int(last[i])
+        a = slice(s0, int(tip_f[i]) + 2)
+        cover_i = (e.fluid[None, a] - e.fine[:, a]) / e.contrast[None, a]
+        j = rows[i].astype(int)
+        along_i = ((1.0 - (rows[i] - j))[:, None] * cover_i[j] + (rows[i] - j)[:, None] * cover_i[j + 1]).mean(axis=0)
+        stations = np.minimum(lo[i] + s0 + np.arange(cover_i.shape[1]), len(plan.half_mm) - 1)
+        cut = speck_cut(cover_i, along_i, float(level[i]), 0, float(tip_f[i] - s0), float(track[i]),
+                        du * plan.half_mm[stations], widest, cfg.band_level)
+        if cut is not None:
+            tip_f[i] = s0 + cut
     tip_mm = plan.to_mm(lo + tip_f, tip_u)
     # pass 2: distance along the measured centre line, slant across the channel -> gaps
     point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]

@@ -210,6 +210,10 @@ class MeasureConfig:
         array's than this fraction (dimensionless) of the dark's distance from it: a shadow
         widens the dark by its own width, the lighter side of an array lit from one side makes
         the core narrower than the array while the dark has the array's width.
+    speck_share : float
+        Past a gap of plain fluid beyond the array's end (no brighter than the fluid by
+        ``band_level``), dark nowhere wider than this share (dimensionless) of the tip's diameter
+        is not more array (a speck, a thin shadow): the array ends at the gap.
     tip_reach_mm : float
         Farthest (mm) the centre line is extrapolated from the last station with measured edges
         to the tip; a frame whose dark run goes on farther is not measured (what continues it
@@ -353,6 +357,7 @@ class MeasureConfig:
     shelf_mm: float = 0.05
     shelf_step: float = 0.15
     core_closer: float = 0.5
+    speck_share: float = 0.6
     tip_reach_mm: float = 1.5
     band_edge_mm: float = 0.3
     tip_width_mm: float = 2.0
