@@ -1139,25 +1139,27 @@ def test_the_arrays_shadow_beside_it_is_not_taken_for_the_array() -> None:
 def test_a_speck_past_a_gap_of_fluid_ends_the_array_before_it() -> None:
     """Coverage along the track and across it: the array (1.0) to station 10, fluid, then at
     stations 14-17 (0) a speck 0.2 mm wide, (1) something 0.6 mm wide (a cap beyond a band as
-    bright as the fluid), (2) the speck with a band's brightness (-0.4) in the gap, (3) no gap."""
+    bright as the fluid), (2) the speck with a band's brightness (-0.4) in the gap, (3) no gap,
+    (4) the speck beside the track's own offset (no evidence of its width there)."""
     from tympani.vision.angles.centreline import speck_cut
 
     m, k, level = 40, 22, 0.5
     offset_mm = np.full(k, 0.04)
     results = []
-    for case in range(4):
+    for case in range(5):
         cover = np.zeros((m, k))
         cover[15:25, :11] = 1.0
         width = 15 if case == 1 else 5  # offsets of 0.04 mm
-        cover[20 - width // 2 : 20 - width // 2 + width, 14:18] = 1.0
+        first = 21 if case == 4 else 20 - width // 2
+        cover[first : first + width, 14:18] = 1.0
         if case == 2:
             cover[15:25, 11:14] = -0.4
         if case == 3:
             cover[15:25, 11:14] = 1.0
-        along = cover[19:22].mean(axis=0)
+        along = cover[20:23].mean(axis=0) if case == 4 else cover[19:22].mean(axis=0)
         results.append(speck_cut(cover, along, level, 2, 17.5, 20.0, offset_mm, 0.36, 0.15))
     assert results[0] == pytest.approx(10.5, abs=0.01)
-    assert results[1:] == [None, None, None]
+    assert results[1:] == [None, None, None, None]
 
 
 def test_a_dark_speck_just_past_the_tip_is_not_read_as_more_array() -> None:

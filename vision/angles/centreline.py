@@ -383,7 +383,7 @@ def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, ti
         lo = row - int(np.argmin(dark[row::-1])) if not dark[: row + 1].all() else -1
         hi = row + int(np.argmin(dark[row:])) if not dark[row:].all() else m
         widest = max(widest, (hi - lo - 1) * float(offset_mm[j]))
-    if widest > widest_mm:
+    if not 0.0 < widest <= widest_mm:  # nothing dark on the track beyond: no evidence
         return None
     a, b = along[fall], along[fall + 1]
     return fall + min(max((a - level) / max(a - b, 1e-6), 0.0), 1.0)
