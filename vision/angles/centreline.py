@@ -389,6 +389,32 @@ def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, ti
     return fall + min(max((a - level) / max(a - b, 1e-6), 0.0), 1.0)
 
 
+def _before_specks(plan: MeasurePlan, edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, tip_u: np.ndarray,
+                   level: np.ndarray) -> np.ndarray:
+    """Each frame's tip (fractional station from its ``lo``) moved back to the gap of fluid before
+    a speck (:func:`speck_cut`), where there is one between its last station with measured edges
+    (``last``) and the tip; ``tip_u`` the tip's normalised offset and ``level`` its crossing
+    level (coverage), per frame."""
+    cfg, u = plan.cfg, plan.u
+    du = float(u[1] - u[0])
+    widest = cfg.speck_share * 2.0 * plan.r_tip_mm
+    track = (tip_u - float(u[0])) / du
+    rows = np.clip(track[:, None] + np.array([-1.0, 0.0, 1.0]), 0, len(u) - 1.001)
+    out = tip_f.copy()
+    for i in np.flatnonzero(tip_f > last + 3.0).tolist():  # room for the array's end, a gap and more
+        e, s0 = edges[i], int(last[i])
+        a = slice(s0, int(tip_f[i]) + 2)
+        cover = (e.fluid[None, a] - e.fine[:, a]) / e.contrast[None, a]
+        j, f = rows[i].astype(int), rows[i] - rows[i].astype(int)
+        along = ((1.0 - f)[:, None] * cover[j] + f[:, None] * cover[j + 1]).mean(axis=0)
+        stations = np.minimum(e.lo + s0 + np.arange(cover.shape[1]), len(plan.half_mm) - 1)
+        cut = speck_cut(cover, along, float(level[i]), 0, float(tip_f[i] - s0), float(track[i]),
+                        du * plan.half_mm[stations], widest, cfg.band_level)
+        if cut is not None:
+            out[i] = s0 + cut
+    return out
+
+
 def tip_reach(array: ElectrodeArray, cfg: MeasureConfig) -> float:
     """Farthest (mm) the tip may lie past the last station with measured edges: the array's
     first band's far end from the tip (no band: nothing) plus ``cfg.band_edge_mm``, at most
@@ -475,21 +501,7 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     along = (fluid - (sampled[0] + sampled[1] + sampled[2]) / 3.0) / contrast
     level = np.array([edges[b].level for b in live.tolist()])
     tip_f = k0 + tip_crossing_ragged(along, level, (n - 1 - k0).astype(float), tail)
-    # a speck past a gap of fluid beyond the array's end is not more array
-    widest = cfg.speck_share * 2.0 * plan.r_tip_mm
-    track = (tip_u - u0) / du
-    rows = np.clip(track[:, None] + np.array([-1.0, 0.0, 1.0]), 0, m - 1.001)
-    for i in np.flatnonzero(tip_f > last + 3.0).tolist():  # room for the array's end, a gap and more
-        e, s0 = edges[int(live[i])], int(last[i])
-        a = slice(s0, int(tip_f[i]) + 2)
-        cover_i = (e.fluid[None, a] - e.fine[:, a]) / e.contrast[None, a]
-        j = rows[i].astype(int)
-        along_i = ((1.0 - (rows[i] - j))[:, None] * cover_i[j] + (rows[i] - j)[:, None] * cover_i[j + 1]).mean(axis=0)
-        stations = np.minimum(lo[i] + s0 + np.arange(cover_i.shape[1]), len(plan.half_mm) - 1)
-        cut = speck_cut(cover_i, along_i, float(level[i]), 0, float(tip_f[i] - s0), float(track[i]),
-                        du * plan.half_mm[stations], widest, cfg.band_level)
-        if cut is not None:
-            tip_f[i] = s0 + cut
+    tip_f = _before_specks(plan, [edges[b] for b in live.tolist()], last, tip_f, tip_u, level)
     tip_mm = plan.to_mm(lo + tip_f, tip_u)
     # pass 2: distance along the measured centre line, slant across the channel -> gaps
     point, normal, half = plan.point_mm[station], plan.normal[station], plan.half_mm[station]
