@@ -1047,14 +1047,14 @@ def test_a_shadows_core_is_found_and_a_highlight_is_not() -> None:
     core, the array's other side lies beyond the highlight; (2) an array lit from one side,
     its outer third lighter (0.6): a core on that side only (the centre line tells it from a
     shadow by the width); (3) a plain array: no core; (4) a shelf one offset wide: too narrow."""
-    from tympani.vision.angles.edges import _cumulative, _nearest_below, _shelf_edges
+    from tympani.vision.angles.edges import _cumulative, _half_crossings, _shelf_edges
 
     m = 60
     cover = _profiles(m, [[(10, 19, 0.6), (20, 39, 1.0)], [(10, 17, 1.0), (18, 24, 0.6), (25, 34, 1.0)],
                           [(10, 24, 1.0), (25, 31, 0.6)], [(10, 29, 1.0)], [(19, 19, 0.6), (20, 39, 1.0)]])
     n = cover.shape[1]
     seed = np.array([30, 12, 15, 20, 30])
-    low, high = (_nearest_below(cover, seed, np.full(n, 0.5), side) for side in (0, 1))
+    low, high = _half_crossings(cover, seed, 0.5)
     clear = np.vstack([np.full(n, 2.0), np.full(n, m - 3.0)])
     core_in, core_out = _shelf_edges(cover, _cumulative(cover, n), seed, low, high, clear, np.full(n, 2.0),
                                      MeasureConfig())

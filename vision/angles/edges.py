@@ -58,7 +58,7 @@ class Edges:
     bubble: bool = False
 
 
-def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) -> np.ndarray:
+def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float | np.ndarray) -> np.ndarray:
     """Where the coverage crosses ``level`` between offsets ``j`` and ``j + 1`` (linear).
 
     Parameters
@@ -70,8 +70,8 @@ def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) 
         and ``j + 1``).
     cols : ndarray, shape (k,), int
         Station of each crossing.
-    level : float
-        Crossing level.
+    level : float or ndarray, shape (k,)
+        Crossing level (of each crossing).
 
     Returns
     -------
@@ -84,7 +84,7 @@ def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float) 
     return j + np.minimum(np.maximum(t, 0.0), 1.0)
 
 
-def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float, run: np.ndarray | None = None,
+def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float | np.ndarray, run: np.ndarray | None = None,
                     wall: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel offsets where coverage falls below ``level`` either side of ``seed``, into the fluid.
 
@@ -99,8 +99,8 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float, run: np.n
         Array coverage (0 fluid, 1 array), offsets × stations.
     seed : ndarray, shape (n,), int
         An offset inside the array at each station.
-    level : float
-        Crossing level.
+    level : float or ndarray, shape (n,)
+        Crossing level (at each station).
     run : ndarray, shape (n,), optional
         Offsets the fluid must span at each station (default 1: the first crossing).
     wall : ndarray, shape (n,), optional
@@ -134,7 +134,8 @@ def _half_crossings(cover: np.ndarray, seed: np.ndarray, level: float, run: np.n
     both = np.full(2 * n, np.nan)  # low, then high
     j_both = np.concatenate([lo_idx, hi_idx - 1])
     ok = np.concatenate([lo_idx >= 0, hi_idx < m])
-    both[ok] = _crossing(cover, j_both[ok], np.concatenate([cols, cols])[ok], level)
+    levels = np.broadcast_to(np.asarray(level, dtype=float), (n,))
+    both[ok] = _crossing(cover, j_both[ok], np.concatenate([cols, cols])[ok], np.concatenate([levels, levels])[ok])
     return both[:n], both[n:]
 
 
@@ -218,27 +219,6 @@ def _relevel(cover: np.ndarray, edge: np.ndarray, valid: np.ndarray, level: np.n
     return np.where(found, j0 + k + t, edge)
 
 
-def _nearest_below(cover: np.ndarray, seed: np.ndarray, level: np.ndarray, side: int) -> np.ndarray:
-    """Sub-pixel offset nearest ``seed`` below it (``side`` 0) or above it (``side`` 1) where the
-    coverage falls below a per-station ``level`` (shape (n,)); NaN where it does not."""
-    m, n = cover.shape[0], len(seed)
-    j = np.arange(m, dtype=np.int16)[:, None]  # small integer types keep these passes fast
-    below = cover[:, :n] < level[None, :]
-    if side == 0:
-        idx = ((below & (j < seed.astype(np.int16)[None, :])) * (j + np.int16(1))).max(axis=0).astype(np.intp) - 1
-    else:
-        idx = m - ((below & (j > seed.astype(np.int16)[None, :])) * (np.int16(m) - j)).max(axis=0).astype(np.intp)
-    step = 1 if side == 0 else -1
-    out = np.full(n, np.nan)
-    ok = (idx >= 0) & (idx < m)  # idx + step lies towards the seed, inside the strip
-    cols = np.arange(n)[ok]
-    a = take2d(cover, idx[ok], cols)  # below the level
-    b = take2d(cover, idx[ok] + step, cols)  # at or above it
-    t = np.clip((level[ok] - a) / np.where(np.abs(b - a) < 1e-6, 1e-6, b - a), 0.0, 1.0)
-    out[ok] = idx[ok] + step * t
-    return out
-
-
 def _shelf_edges(cover: np.ndarray, cumulative: np.ndarray, seed: np.ndarray, low: np.ndarray, high: np.ndarray,
                  clear: np.ndarray, shelf_px: np.ndarray, cfg: MeasureConfig) -> tuple[np.ndarray, np.ndarray]:
     """The edges of a darker core inside the dark where a lighter shelf lies beside it, out to
@@ -255,8 +235,8 @@ def _shelf_edges(cover: np.ndarray, cumulative: np.ndarray, seed: np.ndarray, lo
 
     Parameters
     ----------
-    cover : ndarray, shape (m, k)
-        Coverage (0 fluid, 1 array), offsets × stations (``k >= len(seed)``).
+    cover : ndarray, shape (m, n)
+        Coverage (0 fluid, 1 array), offsets × stations.
     cumulative : ndarray, shape (m + 1, n)
         Its running sums (:func:`_cumulative`).
     seed : ndarray, shape (n,), int
@@ -278,18 +258,19 @@ def _shelf_edges(cover: np.ndarray, cumulative: np.ndarray, seed: np.ndarray, lo
     m, n = cover.shape[0], len(seed)
     j = np.arange(m, dtype=np.float32)[:, None]
     peak = take2d(cover, seed, np.arange(n))
+    cores = _half_crossings(cover, seed, cfg.core_share * peak)
     out = []
     for side, (edge, stop, sign) in enumerate(((low, clear[0], -1.0), (high, clear[1], 1.0))):
-        core = _nearest_below(cover, seed, cfg.core_share * peak, side)
+        core = cores[side]
         outer = np.where(np.isfinite(edge), edge, stop)
         shelf = _fill(cumulative, *((outer, core) if side == 0 else (core, outer)))
         use = (shelf >= cfg.shelf_min) & (peak - shelf >= cfg.shelf_step) & (sign * (outer - core) >= shelf_px)
         level = 0.5 * (peak + shelf)
-        found = np.where(use, _nearest_below(cover, seed, level, side), np.nan)
+        found = np.where(use, _half_crossings(cover, seed, level)[side], np.nan)
         # out to the dark's edge the coverage stays below that level (a highlight does not)
         lo, hi = (outer, found - 0.5) if side == 0 else (found + 0.5, outer)
         between = (j > np.nan_to_num(lo, nan=np.inf)[None, :]) & (j < np.nan_to_num(hi, nan=-np.inf)[None, :])
-        use &= np.isfinite(found) & ~(between & (cover[:, :n] >= level[None, :])).any(axis=0)  # NaN compares False
+        use &= np.isfinite(found) & ~(between & (cover >= level[None, :])).any(axis=0)  # NaN compares False
         out.append(np.where(use, found, np.nan))
     return out[0], out[1]
 
