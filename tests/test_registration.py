@@ -16,6 +16,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from tympani.vision.greyscale import to_gray
 from tympani.vision.geometry import DEFAULT_PHANTOM, CameraPose, backbone_frame, channel_polygon, entry_frame, entry_walls
@@ -386,8 +387,10 @@ def test_registration_to_dict_has_the_pose_keys_and_round_trips():
     assert back.line_half_width_px == pytest.approx(reg.line_half_width_px)
     moved = Registration.from_dict({**d, "line_offset_px": 1.5})
     assert moved.line_offset_px == 1.5 and moved.to_dict()["line_offset_px"] == 1.5
+    fringed = Registration.from_dict({**d, "wall_fringe_px": -3.5})
+    assert fringed.fringe_px == -3.5 and fringed.to_dict()["wall_fringe_px"] == -3.5
     minimal = Registration.from_dict({k: d[k] for k in POSE_KEYS})
-    assert minimal.pose == back.pose and minimal.line_offset_px == 0.0
+    assert minimal.pose == back.pose and minimal.line_offset_px == 0.0 and minimal.fringe_px == 0.0
     # as the registration JSON has it: NaN written null
     from tympani.pipeline.io import to_jsonable
 
@@ -849,3 +852,65 @@ def test_region_walls_seen_twice_do_not_pull_the_scale() -> None:
     assert math.hypot(reg.pose.centre_x_px - 230.022, reg.pose.centre_y_px - 166.453) <= 1.0, reg.pose
     assert abs(reg.pose.px_per_mm / 26.91875 - 1.0) <= 0.005, reg.pose
     assert reg.walls_doubled
+
+
+def _fringed_drawing(seed: int, fluid_darker: bool, with_array: bool = True) -> tuple[CameraPose, np.ndarray]:
+    """A frame whose walls show refraction fringes: across each wall the step between plate
+    and fluid plus a bright band on one side and a dark band on the other, against the step
+    and stronger than half of it, so each wall shows two edges of the step's polarity either
+    side of it and a weaker one of the other polarity on it. Returns the pose and the frame."""
+    rng = np.random.default_rng(seed)
+    w, h = 640, 480
+    pose = CameraPose(float(rng.uniform(260, 380)), float(rng.uniform(200, 280)), float(rng.uniform(-math.pi, math.pi)),
+                      float(rng.uniform(16, 30)), bool(rng.integers(0, 2)))
+    plate = float(rng.uniform(140, 190))
+    step = float(rng.uniform(18, 30)) * (-1.0 if fluid_darker else 1.0)
+    # the channel's coverage of each pixel (filled 8x finer, averaged) and the signed distance
+    # (px, + inside) of each pixel centre to its outline, up to 12 px
+    outline = pose.to_image(channel_polygon(DEFAULT_PHANTOM))
+    fine = np.zeros((8 * h, 8 * w), np.uint8)
+    cv2.fillPoly(fine, [np.round((8 * outline + 3.5) * 16).astype(np.int32)], 255, cv2.LINE_8, 4)
+    coverage = cv2.resize(fine.astype(np.float32) / 255.0, (w, h), interpolation=cv2.INTER_AREA)
+    closed = np.vstack([outline, outline[:1]])
+    steps = np.ceil(np.hypot(*np.diff(closed, axis=0).T) / 0.1).astype(int) + 1
+    dense = np.vstack([np.linspace(a, b, k, endpoint=False) for a, b, k in zip(closed[:-1], closed[1:], steps)])
+    grid = np.stack(np.meshgrid(np.arange(w), np.arange(h)), axis=-1).reshape(-1, 2).astype(float)
+    distance = np.minimum(cKDTree(dense).query(grid, distance_upper_bound=12.0)[0], 12.0).reshape(h, w)
+    signed = np.where(coverage > 0.5, distance, -distance)
+    z = signed / float(rng.uniform(1.3, 2.4))  # the bands' width (px)
+    amp = -np.sign(step) * float(rng.uniform(0.55, 0.9)) * abs(step)  # against the step
+    img = plate + step * coverage + amp * z * np.exp(0.5 - 0.5 * z * z)
+    if with_array:
+        cv2.polylines(img, [_poly(pose, _array_mm(4.0))], False, float(min(plate, plate + step) - 60),
+                      max(1, int(0.8 * pose.px_per_mm)), cv2.LINE_AA, 4)
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), 0.8) + rng.normal(0, 3.0, (h, w))
+    return pose, np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("fluid_darker, with_array, least", [(True, False, 7), (False, False, 7), (True, True, 5),
+                                                           (False, True, 3)])
+def test_fringed_walls_register_between_their_like_edges(fluid_darker: bool, with_array: bool, least: int) -> None:
+    """Fringed walls at 8 random poses (16-30 px/mm, both mirrors), the fluid darker or lighter
+    than the plate, with or without an array 0.8 mm thick filling the first turn and a half:
+    at least ``least`` of the 8 are registered within 0.5 px and 0.3 %, and every fringe named
+    has the step's polarity and a right pose. Measured: without the array 7
+    and 7 of 8 (within 0.05 px and 0.13 %), with it 6 and 3 of 8. Before the fringed fit, 0, 0,
+    1 and 0 of 8: the single fit took one edge of each pair, 2-15 % off in scale or 3-11 px off
+    centre. The array over the fringes still misleads the global search at some poses (known
+    limits)."""
+    good = 0
+    for k in range(8):
+        pose, frame = _fringed_drawing(1300 + 10 * fluid_darker + k, fluid_darker, with_array)
+        reg = register([frame])
+        centre, scale, _ = _errors(reg.pose, pose)
+        good += centre <= 0.5 and scale <= 0.3
+        if reg.fringe_px != 0.0:
+            assert (reg.fringe_px > 0) == fluid_darker and abs(reg.fringe_px) >= 1.5, (k, reg.fringe_px)
+            assert centre <= 0.5 and scale <= 0.3, (k, centre, scale)  # never a fringe with a wrong pose
+            assert not reg.walls_doubled and reg.to_dict()["wall_fringe_px"] == reg.fringe_px
+            assert check(frame, reg) < check(frame, replace(reg, fringe_px=0.0)), k  # check() knows the fringe
+    assert good >= least, good
+
+
+def test_walls_without_fringes_are_not_taken_for_fringed(clean_runs):
+    assert all(reg.fringe_px == 0.0 for _, reg, _, _ in clean_runs)

@@ -29,7 +29,11 @@ show as intensity edges (thin lines, region boundaries or both):
    from pulling on each other. Proposals are refined to half resolution until one fits
    nearly all the walls, then the best few to full resolution; when full resolution does not
    confirm any, the remaining proposals are refined too (a deep array's edges can pass the
-   half-resolution fit in a wrong pose).
+   half-resolution fit in a wrong pose). Each is also fitted as *fringed* walls
+   (:func:`~tympani.vision.registration.refine.refine_fringe`): light refracted at a wall can
+   show a bright band on one side and a dark band on the other, against the step, so each wall
+   shows a pair of edges of the step's polarity either side of it; the wall lies between them.
+   Such a fit replaces the walls found otherwise where it is clearly closer.
 4. **Verification**: along each wall normal, the distance from where the wall's edge is
    expected to the nearest Canny edge of matching orientation. Too few inliers, too little
    of the channel in view or too large a residual mean no phantom: :class:`RegistrationError`

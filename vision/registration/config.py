@@ -57,6 +57,21 @@ class RegistrationConfig:
         Largest accepted residual (px, :attr:`WallFit.residual_px`).
     combine : {"median", "mean", "first"}
         How several frames are merged before edge detection.
+    fringe_starts_px : tuple of float
+        Half spacings (px) of a fringed wall's like edges from which the fringe fit starts
+        (:func:`tympani.vision.registration.refine.refine_fringe`).
+    fringe_min_px, fringe_max_px : float
+        Least and largest half spacing (px) of a fringe's like edges.
+    fringe_balance : float
+        Least ratio of the weaker to the stronger edge of a fringe's pair (how often each is
+        found along the walls).
+    fringe_evenness : float
+        Least evenness of a fringe's pair of like edges around the spiral (the weakest of four
+        facing directions against the strongest): the two copies of doubled walls show apart
+        only where the walls face along their parallax.
+    fringe_residual_share : float
+        A fringed fit replaces the walls found otherwise (single, doubled or beside the edge)
+        only where its residual is at most this share of theirs, or where they fail.
     """
 
     px_per_mm_range: tuple[float, float] | None = None
@@ -77,6 +92,12 @@ class RegistrationConfig:
     min_visible_fraction: float = 0.3
     max_residual_px: float = 3.0
     combine: str = "median"
+    fringe_starts_px: tuple[float, ...] = (3.0, 4.5)
+    fringe_min_px: float = 1.5
+    fringe_max_px: float = 6.0
+    fringe_balance: float = 0.6
+    fringe_residual_share: float = 0.65
+    fringe_evenness: float = 0.75
 
     def __post_init__(self) -> None:
         if self.px_per_mm_range is not None:
@@ -164,6 +185,13 @@ class Registration:
         registered axis; NaN where it does not show as a pair of edges an array's width apart. The
         array lies on the axis, so a few pixels here mean the pose is off across it (walls that
         show twice, registered on the wrong copy) or something else lies there.
+    fringe_px : float
+        Half the spacing (px) of a fringed wall's pair of like edges: light refracted at the
+        wall shows a bright band on one side and a dark band on the other, against the step
+        between fluid and plate, so each wall shows two edges of the step's polarity
+        ``|fringe_px|`` either side of it and one of the other polarity on it. Positive when
+        the pair's gradients point out of the channel (dark to bright outwards), negative when
+        into it; 0 for walls without fringes (or where a single edge or line fits as well).
     """
 
     pose: CameraPose
@@ -179,6 +207,7 @@ class Registration:
     second_copy_contrast: float = float("nan")
     array_axis_offset_px: float = float("nan")
     line_offset_px: float = 0.0
+    fringe_px: float = 0.0
     _check_cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     def other_copy(self) -> "Registration":
@@ -201,7 +230,7 @@ class Registration:
         """The registration JSON's keys (docs/file-formats.md) plus the fit statistics and the doubled walls (JSON-ready):
         ``walls_doubled``, ``wall_parallax_mm`` (:attr:`parallax_mm`), ``wall_parallax_x_px``,
         ``wall_parallax_y_px``, ``second_copy_contrast``, ``array_axis_offset_px`` (NaN when
-        unknown) and ``line_offset_px``."""
+        unknown), ``line_offset_px`` and ``wall_fringe_px`` (:attr:`fringe_px`)."""
         p = self.pose
         return {
             "centre_x_px": float(p.centre_x_px),
@@ -224,6 +253,7 @@ class Registration:
             "second_copy_contrast": float(self.second_copy_contrast),
             "array_axis_offset_px": float(self.array_axis_offset_px),
             "line_offset_px": float(self.line_offset_px),
+            "wall_fringe_px": float(self.fringe_px),
         }
 
     @classmethod
@@ -257,6 +287,7 @@ class Registration:
             second_copy_contrast=num("second_copy_contrast"),
             array_axis_offset_px=num("array_axis_offset_px"),
             line_offset_px=num("line_offset_px", 0.0),
+            fringe_px=num("wall_fringe_px", 0.0),
         )
 
 

@@ -5,7 +5,7 @@ frame)."""
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from tympani.vision.registration.frames import (
     prepare_edges,
 )
 from tympani.vision.registration.model import WallModel, wall_model
-from tympani.vision.registration.refine import refine_coarse, refine_fine
+from tympani.vision.registration.refine import refine_coarse, refine_fine, refine_fringe
 from tympani.vision.registration.valley import valley_pose, valley_scan
 from tympani.vision.registration.verify import WallFit, check_walls, edge_layers, wall_fit, wall_fit_from
 
@@ -56,6 +56,17 @@ _RESTART_GAIN = 1.02
 _RESTART_STEP = 0.01
 
 
+@dataclass(frozen=True)
+class Fitted:
+    """A pose refined at full resolution: the pose, the wall lines' half width (px), its fit
+    and the walls' fringe (px, :attr:`Registration.fringe_px`; 0 for walls without)."""
+
+    pose: CameraPose
+    half_width: float
+    fit: WallFit
+    fringe: float = 0.0
+
+
 def _best_pose(
     edges: Edges,
     layers: np.ndarray,
@@ -63,9 +74,9 @@ def _best_pose(
     cfg: RegistrationConfig,
     scale_range: tuple[float, float],
     b_per_rad: float,
-) -> tuple[CameraPose, float, WallFit] | None:
+) -> tuple[Fitted | None, Fitted | None]:
     """Global search over ``scale_range`` (px/mm), refinement of the best proposals, and the
-    best-supported result.
+    best-supported result, with the best-supported fit of fringed walls.
 
     Each proposal refined at full resolution is also refined from the best turn along the
     spiral's self-similarity valley (:func:`valley_scan`), and the better supported of the
@@ -73,42 +84,57 @@ def _best_pose(
     few percent smaller and larger scales (``_RESTART_SCALES``).
 
     ``layers`` is :func:`edge_layers` of the edges and ``b_per_rad`` the exponential
-    branch's ``b`` (1/rad). Returns the pose, the wall lines' half width (px) and the fit, or
-    None.
+    branch's ``b`` (1/rad). Every refinement at full resolution is also fitted as fringed walls
+    (:func:`refine_fringe`). Returns the best :class:`Fitted` (or None) and the best fringed
+    one that passes the fit's tests (or None).
     """
     proposals = coarse_search(edges, model, cfg, scale_range)
     lo, hi = scale_range
 
-    def fit(pose: CameraPose, spacing_px: float, half_width: float | None) -> WallFit:
+    def fit(pose: CameraPose, spacing_px: float, half_width: float | None, fringe: float = 0.0) -> WallFit:
         sub = model.subsample(spacing_px / pose.px_per_mm)
         tol = cfg.inlier_tol_px + (cfg.max_line_half_width_px if half_width is None else 0.0)
-        return wall_fit_from(pose, layers, sub, half_width, tol)
+        return wall_fit_from(pose, layers, sub, half_width, tol, fringe=fringe)
 
-    def refined(start: CameraPose) -> tuple[CameraPose, float, WallFit]:
+    fringed: list[Fitted] = []
+
+    def fine(start: CameraPose) -> Fitted:
+        """``start`` refined at full resolution; its fit as fringed walls, where it passes, is
+        kept in ``fringed``."""
+        pose, half_width = refine_fine(start, edges, model, cfg)
+        alternative = refine_fringe(start, edges, model, cfg)
+        if alternative is not None:
+            alternative_fit = fit(alternative[0], cfg.model_spacing_px, 0.0, alternative[1])
+            if not _fit_failures(alternative_fit, cfg):
+                fringed.append(Fitted(alternative[0], 0.0, alternative_fit, alternative[1]))
+        return Fitted(pose, half_width, fit(pose, cfg.model_spacing_px, half_width))
+
+    def refined(start: CameraPose) -> Fitted:
         """``start`` refined at full resolution, or its turn along the valley where that
         explains more of the walls."""
-        pose, half_width = refine_fine(start, edges, model, cfg)
-        result = fit(pose, cfg.model_spacing_px, half_width)
-        delta = valley_scan(pose, edges.pyramid, model, b_per_rad)
+        result = fine(start)
+        delta = valley_scan(result.pose, edges.pyramid, model, b_per_rad)
         if delta != 0.0:
-            turned, turned_hw = refine_fine(valley_pose(pose, delta, b_per_rad), edges, model, cfg)
-            turned_fit = fit(turned, cfg.model_spacing_px, turned_hw)
-            if turned_fit.matched_length_mm > result.matched_length_mm:
-                return turned, turned_hw, turned_fit
-        return pose, half_width, result
+            turned = fine(valley_pose(result.pose, delta, b_per_rad))
+            if turned.fit.matched_length_mm > result.fit.matched_length_mm:
+                return turned
+        return result
 
-    def rescaled(best: tuple[CameraPose, float, WallFit]) -> tuple[CameraPose, float, WallFit]:
-        pose0 = best[0]
+    def rescaled(best: Fitted) -> Fitted:
+        pose0 = best.pose
         for k in _RESTART_SCALES:
-            pose, half_width, result = refined(CameraPose(pose0.centre_x_px, pose0.centre_y_px, pose0.rotation_rad,
-                                                          k * pose0.px_per_mm, pose0.mirrored))
-            if not 0.8 * lo <= pose.px_per_mm <= 1.25 * hi:
+            result = refined(CameraPose(pose0.centre_x_px, pose0.centre_y_px, pose0.rotation_rad,
+                                        k * pose0.px_per_mm, pose0.mirrored))
+            if not 0.8 * lo <= result.pose.px_per_mm <= 1.25 * hi:
                 continue
-            if (abs(pose.px_per_mm / pose0.px_per_mm - 1.0) >= _RESTART_STEP
-                    and result.matched_length_mm >= _RESTART_GAIN * best[2].matched_length_mm
-                    and result.residual_px <= best[2].residual_px):
-                best = (pose, half_width, result)
+            if (abs(result.pose.px_per_mm / pose0.px_per_mm - 1.0) >= _RESTART_STEP
+                    and result.fit.matched_length_mm >= _RESTART_GAIN * best.fit.matched_length_mm
+                    and result.fit.residual_px <= best.fit.residual_px):
+                best = result
         return best
+
+    def best_fringed() -> Fitted | None:
+        return max(fringed, key=lambda f: f.fit.matched_length_mm, default=None)
 
     excellent = _EXCELLENT * model.length_mm
     remaining = list(proposals)
@@ -128,16 +154,16 @@ def _best_pose(
         ranked = distinct(sorted(coarse, key=lambda p: -p.score), len(coarse))
         for prop in [p for p in ranked if not any(p is q for q in done)][: cfg.n_fine]:
             done.append(prop)
-            pose, half_width, result = refined(prop.pose)
-            if best is None or result.matched_length_mm > best[2].matched_length_mm:
-                best = (pose, half_width, result)
-            if result.matched_length_mm >= excellent:
-                return best
+            result = refined(prop.pose)
+            if best is None or result.fit.matched_length_mm > best.fit.matched_length_mm:
+                best = result
+            if result.fit.matched_length_mm >= excellent:
+                return best, best_fringed()
         # Not confirmed at full resolution (the half-resolution fit is lenient: an array deep
         # in the channel, its edges taken for walls, can pass it in a wrong pose): go on
         # with the proposals left, if any.
         if not remaining:
-            return best if best is None else rescaled(best)
+            return (None if best is None else rescaled(best)), best_fringed()
 
 
 def register(
@@ -183,11 +209,11 @@ def register(
     model = wall_model(phantom, spacing_mm=0.02)
     layers = edge_layers(edges.edge_map)
     b_per_rad = math.degrees(phantom.b_per_deg)  # b of the exponential branch, 1/rad
-    best = _best_pose(edges, layers, model, cfg, scale_range, b_per_rad)
+    best, fringed = _best_pose(edges, layers, model, cfg, scale_range, b_per_rad)
     if best is None:
         raise RegistrationError(f"no phantom found at {scales}: no candidate of the global search converged to a "
                                 "plausible scale")
-    pose, half_width, fit = best
+    pose, half_width, fit = best.pose, best.half_width, best.fit
 
     def where_array(first: CameraPose, shift: tuple[float, float]) -> tuple[float, float]:
         return copy_offsets(gray, first, shift, phantom)
@@ -231,6 +257,17 @@ def register(
                 pose, half_width, line_offset = moved_pose, moved_hw, moved_offset
                 fit, reasons = moved_fit, moved_reasons
                 offset = array_axis_offset(gray, pose, phantom)
+    # fringed walls: where a pair of like edges either side of each wall fits them at least as
+    # well and clearly closer than the walls found above (a fringe's three edges give any fit
+    # more edges to lie near), the walls lie between the pairs; the single fit takes one edge
+    # of each pair, and the pairs of neighbouring walls can pull it off scale or pass for doubled walls
+    fringe = 0.0
+    if fringed is not None and (reasons or (
+            fringed.fit.matched_length_mm >= fit.matched_length_mm
+            and fringed.fit.residual_px <= cfg.fringe_residual_share * fit.residual_px)):
+        pose, half_width, fit, fringe, reasons = fringed.pose, 0.0, fringed.fit, fringed.fringe, []
+        doubled, shift, contrast, line_offset = None, (0.0, 0.0), float("nan"), 0.0
+        offset = array_axis_offset(gray, pose, phantom)
     if reasons:
         raise RegistrationError(f"no phantom found at {scales}: the best candidate fails: " + "; ".join(reasons))
     registration = Registration(
@@ -247,6 +284,7 @@ def register(
         second_copy_contrast=contrast,
         array_axis_offset_px=offset,
         line_offset_px=line_offset,
+        fringe_px=fringe,
     )
     # check()'s wall points, from the model at hand (what wall_fit would build on first use)
     key, walls = (phantom, pose), check_walls(pose, model)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from tympani.vision.geometry import DEFAULT_PHANTOM, Phantom, backbone_frame, entry_frame, entry_walls
 
@@ -26,12 +27,16 @@ class WallModel:
         Part of the channel: 0 the entry walls, 1 the spiral walls up to half a turn, 2 the
         second half-turn, 3 the rest with the closing cap. A rotation about the spiral
         centre hardly moves the log-spiral walls but does move groups 0 and 1.
+    room_mm : ndarray, shape (n,)
+        Distance (mm) along each point's normal to the next wall beyond it (across a septum
+        between turns), ``inf`` where none lies within 1 mm.
     """
 
     points: np.ndarray
     normals: np.ndarray
     spacing_mm: float
     group: np.ndarray
+    room_mm: np.ndarray
 
     @property
     def length_mm(self) -> float:
@@ -41,7 +46,7 @@ class WallModel:
     def subsample(self, spacing_mm: float) -> "WallModel":
         """Every k-th point, so that the spacing is about ``spacing_mm`` (mm) or more."""
         k = max(1, int(round(spacing_mm / self.spacing_mm)))
-        return WallModel(self.points[::k], self.normals[::k], self.spacing_mm * k, self.group[::k])
+        return WallModel(self.points[::k], self.normals[::k], self.spacing_mm * k, self.group[::k], self.room_mm[::k])
 
 
 def _resample(line: np.ndarray, spacing_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -86,7 +91,7 @@ def wall_model(phantom: Phantom = DEFAULT_PHANTOM, spacing_mm: float = 0.02) -> 
     model = _WALL_MODEL_CACHE.get(key)
     if model is None:
         model = _build_wall_model(phantom, float(spacing_mm))
-        for a in (model.points, model.normals, model.group):
+        for a in (model.points, model.normals, model.group, model.room_mm):
             a.flags.writeable = False
         if len(_WALL_MODEL_CACHE) >= 4:
             _WALL_MODEL_CACHE.clear()
@@ -113,9 +118,22 @@ def _build_wall_model(phantom: Phantom, spacing_mm: float) -> WallModel:
     pts, nrm, _ = _resample(cap, spacing_mm)
     t_end = backbone_frame(phantom.theta_end, phantom)[1]
     parts.append((pts, outward(nrm, t_end), np.full(len(pts), 3)))
-    return WallModel(
-        np.vstack([p[0] for p in parts]),
-        np.vstack([p[1] for p in parts]),
-        float(spacing_mm),
-        np.concatenate([p[2] for p in parts]),
-    )
+    points, normals = np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+    return WallModel(points, normals, float(spacing_mm), np.concatenate([p[2] for p in parts]),
+                     _room(points, normals, spacing_mm))
+
+
+def _room(points: np.ndarray, normals: np.ndarray, spacing_mm: float, reach_mm: float = 1.0) -> np.ndarray:
+    """Distance (mm) along each outward normal to the next wall beyond (``inf`` within
+    ``reach_mm``): the first of the probes every ``spacing_mm`` out from the point that lies
+    within a spacing of another wall point."""
+    tree = cKDTree(points)
+    room = np.full(len(points), np.inf)
+    for s in np.arange(3.0 * spacing_mm, reach_mm + 1e-9, spacing_mm):
+        todo = np.isinf(room)
+        if not todo.any():
+            break
+        dist, _ = tree.query(points[todo] + s * normals[todo], distance_upper_bound=spacing_mm)
+        hit = np.flatnonzero(todo)[np.isfinite(dist)]
+        room[hit] = s
+    return room

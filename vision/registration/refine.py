@@ -189,6 +189,92 @@ def refine_signed(
     return pose, half_width
 
 
+def refine_fringed(
+    pose: CameraPose,
+    fringe: float,
+    sfield: np.ndarray,
+    model: WallModel,
+    sigma: float,
+    iterations: int,
+    *,
+    max_fringe: float,
+    tol_px: float = 0.01,
+) -> tuple[CameraPose, float, tuple[float, float, float, float]]:
+    """Polarity-aware refinement of fringed walls at full resolution.
+
+    Light refracted at a wall can show as a bright band on one side and a dark band on the
+    other, against the step between fluid and plate: each wall then shows two edges of the
+    step's polarity ``±f`` (px, along the outward normal) either side of it and one of the other
+    polarity on it. Edges of class ``sign(fringe)`` (as :func:`refine_signed`'s classes) are
+    fitted at ``-f`` and ``+f``, the other class at 0, ``f`` estimated with the pose from
+    ``|fringe|``; ``f`` is kept within ``[0.5, max_fringe]``. The pair's outer edge is fitted
+    only on walls with room beyond them (``model.room_mm``): across a septum between turns a
+    neighbouring wall's fringe overlaps it.
+
+    Returns the pose, the signed ``f`` (px), and the mean edge weight per wall point with room
+    beyond of the pair's inner (``-f``) and outer (``+f``) edge (a wall fringed on both sides
+    supports both about equally), per visible wall point of the middle one, and the pair's
+    evenness on the walls with room: its weight on the walls facing each of four directions
+    (normals binned by angle modulo π), the weakest direction's over the strongest's.
+    """
+    sign = 1.0 if fringe > 0 else -1.0
+    spread = abs(fringe)
+    gain = 1.0 + FIELD_BLUR_VAR / sigma**2
+    scale0 = pose.px_per_mm
+    reach = max_fringe + 3.0 * sigma
+    t = np.arange(-reach, reach + 1e-9, 0.5)
+    support = (0.0, 0.0, 0.0, 0.0)
+    for _ in range(iterations):
+        pts, nrm = image_points(pose, model)
+        vis = visible(pts, sfield.shape)
+        if int(np.count_nonzero(vis)) < 20:
+            break
+        pts, nrm = pts[vis], nrm[vis]
+        # the pair's outer edge only where the next wall beyond (across a septum) is far enough
+        # for its own fringe to stay clear of it
+        clear = model.room_mm[vis] * pose.px_per_mm >= 2.0 * spread + 3.0 * sigma
+        prof = profiles(sfield, pts, nrm, t)
+        proj = prof[..., 0] * nrm[:, 0:1]
+        proj += prof[..., 1] * nrm[:, 1:2]
+        base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
+        rows = []  # (d offset / d f, rows kept, their offsets, their weights) of each expected edge
+        for cls, side in ((sign, -1.0), (sign, 1.0), (-sign, 0.0)):
+            expected = side * spread
+            a = np.maximum(cls * proj, 0.0)
+            a *= np.exp(-0.5 * ((t - expected) / sigma) ** 2)
+            wsum = a.sum(axis=1)
+            ok = (wsum > 1e-3) & (clear if side > 0 else True)
+            rows.append((side, ok, gain * (a @ (t - expected))[ok] / wsum[ok], wsum[ok]))
+        # on the walls clear beyond: how often each edge of the pair shows, and how evenly
+        # around the spiral (a fringe lies along every wall, the two copies of doubled walls
+        # show apart only where the walls face along their parallax)
+        pair = np.zeros((2, len(pts)))
+        for k, (_, ok, _, w) in enumerate(rows[:2]):
+            pair[k, ok] = w
+        pair = pair[:, clear]
+        n_clear = max(int(np.count_nonzero(clear)), 1)
+        facing = np.minimum((np.arctan2(nrm[clear, 1], nrm[clear, 0]) % np.pi) * (4.0 / np.pi), 3.999).astype(np.intp)
+        counts = np.bincount(facing, minlength=4)
+        per_bin = np.bincount(facing, weights=pair.sum(axis=0), minlength=4) / np.maximum(counts, 1)
+        evenness = float(per_bin[counts > 0].min() / max(per_bin.max(), 1e-12)) if counts.any() else 0.0
+        support = (float(pair[0].sum()) / n_clear, float(pair[1].sum()) / n_clear,
+                   float(rows[2][3].sum()) / len(pts), evenness)
+        if sum(len(r) for _, _, r, _ in rows) < 20:
+            break
+        jac = np.concatenate([np.column_stack([base[ok], np.full(int(ok.sum()), side)]) for side, ok, _, _ in rows])
+        rhs = np.concatenate([r for _, _, r, _ in rows])
+        step = solve_step(jac, rhs, np.concatenate([w for *_, w in rows]), max_px=reach * gain)
+        if step is None:
+            break
+        pose = updated(pose, step[:4], rho)
+        spread = min(max(spread + float(step[4]), 0.5), max_fringe)
+        if not 0.5 * scale0 < pose.px_per_mm < 2.0 * scale0:
+            break
+        if float(np.abs(step).sum()) < tol_px:
+            break
+    return pose, sign * spread, support
+
+
 def _start_level(pose: CameraPose, n_levels: int) -> int:
     """Pyramid level at which the phantom appears at 3–6 px/mm."""
     return int(np.clip(math.floor(math.log2(max(pose.px_per_mm, 1e-6) / 3.0)), 0, n_levels - 1))
@@ -217,3 +303,32 @@ def refine_fine(
     return refine_signed(
         pose, 0.0, edges.signed, sub, cfg.final_sigma_px, iterations=20, max_half_width=cfg.max_line_half_width_px
     )
+
+
+def refine_fringe(pose: CameraPose, edges: Edges, model: WallModel, cfg: RegistrationConfig) -> tuple[CameraPose, float] | None:
+    """The pose and signed fringe (px, :attr:`Registration.fringe_px`) of fringed walls near
+    ``pose``, or None where the walls do not look fringed.
+
+    From ``pose`` refined once more polarity-blind, :func:`refine_fringed` runs for both
+    polarities from each of ``cfg.fringe_starts_px``; a result counts where its pair of like
+    edges lies at least ``cfg.fringe_min_px`` either side of the wall (a single edge or a line
+    pulls ``f`` to the smallest or largest value allowed instead) and both edges of the pair are
+    found about equally often (the weaker at least ``cfg.fringe_balance`` of the stronger). Of
+    those, the best supported is returned.
+    """
+    sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
+    blind = _refine_level(pose, edges.pyramid[0], sub, cfg.refine_sigma_px, iterations=10, tol_px=0.05)
+    best, best_support = None, 0.0
+    for sign in (1.0, -1.0):
+        for start in cfg.fringe_starts_px:
+            fitted, fringe, _ = refine_fringed(blind, sign * start, edges.signed, sub, 1.5 * cfg.final_sigma_px, 10,
+                                               max_fringe=cfg.fringe_max_px)
+            fitted, fringe, (inner, outer, middle, evenness) = refine_fringed(fitted, fringe, edges.signed, sub,
+                                                                    cfg.final_sigma_px, 20, max_fringe=cfg.fringe_max_px)
+            if not cfg.fringe_min_px <= abs(fringe) <= cfg.fringe_max_px - 0.25:
+                continue
+            if min(inner, outer) < cfg.fringe_balance * max(inner, outer) or evenness < cfg.fringe_evenness:
+                continue
+            if inner + outer + middle > best_support:
+                best, best_support = (fitted, fringe), inner + outer + middle
+    return best

@@ -64,7 +64,7 @@ def valley_scan(
     f = 0.5**level
     lp = scaled_pose(pose, f)
     keep = model.group <= 1
-    part = WallModel(model.points[keep], model.normals[keep], model.spacing_mm, model.group[keep])
+    part = WallModel(model.points[keep], model.normals[keep], model.spacing_mm, model.group[keep], model.room_mm[keep])
     part = part.subsample(1.5 / lp.px_per_mm)
     r_max = float(np.max(np.hypot(part.points[:, 0], part.points[:, 1]))) * lp.px_per_mm
     n_side = int(math.ceil(_VALLEY_MAX_RAD * r_max))

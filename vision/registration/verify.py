@@ -76,6 +76,7 @@ def _edge_distances(
     second: np.ndarray | None = None,
     half_width2: float | None = None,
     offset: float = 0.0,
+    fringe: float = 0.0,
 ) -> np.ndarray:
     """Distance (px) along each normal from a wall's expected edge to the nearest edge pixel.
 
@@ -86,9 +87,12 @@ def _edge_distances(
     normal of the wall's second copy, whose edges are expected as far from it; an edge counts
     from the nearer copy, the second copy's at ``±half_width2`` (px; None: as the first's).
     Lines whose centres lie ``offset`` (px) outside the channel's edge have their edges that much
-    further out. Walls without an edge within ``reach`` get ``reach``.
+    further out. Fringed walls (``fringe`` != 0, px): an edge whose gradient points out of the
+    channel when ``fringe > 0`` (into it when ``< 0``) is expected at ``±|fringe|``, the nearer of
+    the two, and an edge of the other polarity at the wall itself. Walls without an edge within
+    ``reach`` get ``reach``.
     """
-    hw = 0.0 if half_width is None else max(abs(half_width), abs(half_width2 or 0.0))
+    hw = abs(fringe) if half_width is None else max(abs(half_width), abs(half_width2 or 0.0)) + abs(fringe)
     lo, hi = -reach - hw + min(offset, 0.0), reach + hw + max(offset, 0.0)
     if second is not None and len(second):
         lo, hi = lo + min(float(second.min()), 0.0), hi + max(float(second.max()), 0.0)
@@ -109,6 +113,10 @@ def _edge_distances(
     proj += prof[..., 1] * ny
     expected = np.float32(offset) + (0.0 if half_width is None else np.where(proj > 0, np.float32(half_width),
                                                                             np.float32(-half_width)))
+    if fringe:
+        # the pair's nearer edge for the fringe's polarity, the wall itself for the other
+        side = np.where(along > expected, np.float32(abs(fringe)), np.float32(-abs(fringe)))
+        expected = expected + np.where(proj * np.float32(fringe) > 0, side, np.float32(0.0))
     dist = along - expected
     if second is not None:
         dist2 = dist - second[:, None].astype(np.float32)
@@ -187,17 +195,18 @@ def wall_fit_from(
     parallax_px: np.ndarray | None = None,
     half_width2: float | None = None,
     offset: float = 0.0,
+    fringe: float = 0.0,
 ) -> WallFit:
     """:class:`WallFit` of ``pose`` against a full-frame edge layer image; with
     ``parallax_px`` (px, image x and y), the walls' second copy that far away counts too, its
     lines ``half_width2`` (px; None: ``half_width``) wide; the lines' centres ``offset`` (px)
-    outside the channel's edge."""
+    outside the channel's edge; ``fringe`` (px) as :func:`_edge_distances` says."""
     pts, nrm = image_points(pose, model)
     h, w = layers.shape[:2]
     vis = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
     reach = max(_REACH_PX, tol)
     second = None if parallax_px is None else nrm[vis] @ np.asarray(parallax_px, dtype=float)
-    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second, half_width2, offset)
+    dist = _edge_distances(layers, pts[vis], nrm[vis], half_width, reach, second, half_width2, offset, fringe)
     sizes = np.bincount(model.group, minlength=4)
     return _summarise(dist, model.group[vis], len(pts), sizes, tol, model.spacing_mm, reach)
 
@@ -224,10 +233,12 @@ def _crop_fit(
     tol: float,
     parallax_px: np.ndarray | None = None,
     offset: float = 0.0,
+    fringe: float = 0.0,
 ) -> WallFit:
     """:class:`WallFit` with Canny run only on the bounding box of the visible walls (and of
     their second copy ``parallax_px`` away, px, when the walls are doubled), their lines'
-    centres ``offset`` (px) outside the channel's edge.
+    centres ``offset`` (px) outside the channel's edge, fringed as ``fringe`` (px) says
+    (:func:`_edge_distances`).
 
     The crop is shrunk when the scale is large (distances are reported in full-resolution
     px), which keeps :func:`check` at a few milliseconds.
@@ -239,7 +250,8 @@ def _crop_fit(
         return WallFit(float("inf"), 0.0, 0.0, 0.0)
     pts, nrm, group = pts[vis], nrm[vis], group[vis]
     shift = np.zeros(2) if parallax_px is None else np.asarray(parallax_px, dtype=float)
-    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width) + abs(offset) + np.abs(shift).max())) + 2
+    margin = int(math.ceil(3.0 * sigma_px + _REACH_PX + abs(half_width) + abs(offset) + abs(fringe)
+                           + np.abs(shift).max())) + 2
     x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int) - margin, 0)
     x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + margin + 1, [w, h])
     crop = frame[y0:y1, x0:x1]
@@ -255,7 +267,8 @@ def _crop_fit(
         local = (local + 0.5) * f - 0.5
     em = detect_edges(crop, sigma_px=max(sigma_px * f, 0.7))
     second = None if parallax_px is None else (nrm @ shift) * f
-    dist = _edge_distances(edge_layers(em), local, nrm, half_width * f, _REACH_PX * f, second, offset=offset * f) / f
+    dist = _edge_distances(edge_layers(em), local, nrm, half_width * f, _REACH_PX * f, second, offset=offset * f,
+                           fringe=fringe * f) / f
     n_total = int(sizes.sum())
     return _summarise(dist, group, n_total, sizes, tol, 0.0)
 
@@ -300,4 +313,5 @@ def wall_fit(
         cfg.inlier_tol_px,
         np.asarray(registration.parallax_px, dtype=float) if registration.walls_doubled else None,
         registration.line_offset_px if np.isfinite(registration.line_offset_px) else 0.0,
+        registration.fringe_px,
     )
