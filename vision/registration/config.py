@@ -71,7 +71,10 @@ class RegistrationConfig:
         only where the walls face along their parallax.
     fringe_residual_share : float
         A fringed fit replaces the walls found otherwise (single, doubled or beside the edge)
-        only where its residual is at most this share of theirs, or where they fail.
+        only where its residual is at most this share of theirs, or where they fail ...
+    fringe_max_residual_px : float
+        ... and its residual is at most this (px): fringes that the model of a symmetric pair
+        describes fit within a few tenths of a pixel.
     """
 
     px_per_mm_range: tuple[float, float] | None = None
@@ -97,6 +100,7 @@ class RegistrationConfig:
     fringe_max_px: float = 6.0
     fringe_balance: float = 0.6
     fringe_residual_share: float = 0.65
+    fringe_max_residual_px: float = 0.5
     fringe_evenness: float = 0.75
 
     def __post_init__(self) -> None:

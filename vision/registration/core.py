@@ -257,12 +257,12 @@ def register(
                 pose, half_width, line_offset = moved_pose, moved_hw, moved_offset
                 fit, reasons = moved_fit, moved_reasons
                 offset = array_axis_offset(gray, pose, phantom)
-    # fringed walls: where a pair of like edges either side of each wall fits them at least as
-    # well and clearly closer than the walls found above (a fringe's three edges give any fit
+    # fringed walls: where a pair of like edges either side of each wall fits them closely, at
+    # least as well and clearly closer than the walls found above (a fringe's three edges give any fit
     # more edges to lie near), the walls lie between the pairs; the single fit takes one edge
     # of each pair, and the pairs of neighbouring walls can pull it off scale or pass for doubled walls
     fringe = 0.0
-    if fringed is not None and (reasons or (
+    if fringed is not None and fringed.fit.residual_px <= cfg.fringe_max_residual_px and (reasons or (
             fringed.fit.matched_length_mm >= fit.matched_length_mm
             and fringed.fit.residual_px <= cfg.fringe_residual_share * fit.residual_px)):
         pose, half_width, fit, fringe, reasons = fringed.pose, 0.0, fringed.fit, fringed.fringe, []
