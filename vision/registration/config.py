@@ -57,6 +57,9 @@ class RegistrationConfig:
         Largest accepted residual (px, :attr:`WallFit.residual_px`).
     combine : {"median", "mean", "first"}
         How several frames are merged before edge detection.
+    fringe_try_residual_px : float
+        Fringed walls are not fitted from refinements that explain nearly all the walls within
+        this (px, their residual): a fringed fit could not be clearly closer.
     fringe_starts_px : tuple of float
         Half spacings (px) of a fringed wall's like edges from which the fringe fit starts
         (:func:`tympani.vision.registration.refine.refine_fringe`).
@@ -95,6 +98,7 @@ class RegistrationConfig:
     min_visible_fraction: float = 0.3
     max_residual_px: float = 3.0
     combine: str = "median"
+    fringe_try_residual_px: float = 0.3
     fringe_starts_px: tuple[float, ...] = (3.0, 4.5)
     fringe_min_px: float = 1.5
     fringe_max_px: float = 6.0

@@ -97,17 +97,21 @@ def _best_pose(
         return wall_fit_from(pose, layers, sub, half_width, tol, fringe=fringe)
 
     fringed: list[Fitted] = []
+    excellent = _EXCELLENT * model.length_mm
 
     def fine(start: CameraPose) -> Fitted:
-        """``start`` refined at full resolution; its fit as fringed walls, where it passes, is
-        kept in ``fringed``."""
+        """``start`` refined at full resolution; unless its walls lie within
+        ``cfg.fringe_try_residual_px`` of their edges and it explains nearly all of them, its
+        fit as fringed walls, where that passes, is kept in ``fringed``."""
         pose, half_width = refine_fine(start, edges, model, cfg)
-        alternative = refine_fringe(start, edges, model, cfg)
-        if alternative is not None:
-            alternative_fit = fit(alternative[0], cfg.model_spacing_px, 0.0, alternative[1])
-            if not _fit_failures(alternative_fit, cfg):
-                fringed.append(Fitted(alternative[0], 0.0, alternative_fit, alternative[1]))
-        return Fitted(pose, half_width, fit(pose, cfg.model_spacing_px, half_width))
+        result = Fitted(pose, half_width, fit(pose, cfg.model_spacing_px, half_width))
+        if result.fit.residual_px > cfg.fringe_try_residual_px or result.fit.matched_length_mm < excellent:
+            alternative = refine_fringe(start, edges, model, cfg)
+            if alternative is not None:
+                alternative_fit = fit(alternative[0], cfg.model_spacing_px, 0.0, alternative[1])
+                if not _fit_failures(alternative_fit, cfg):
+                    fringed.append(Fitted(alternative[0], 0.0, alternative_fit, alternative[1]))
+        return result
 
     def refined(start: CameraPose) -> Fitted:
         """``start`` refined at full resolution, or its turn along the valley where that
@@ -136,7 +140,6 @@ def _best_pose(
     def best_fringed() -> Fitted | None:
         return max(fringed, key=lambda f: f.fit.matched_length_mm, default=None)
 
-    excellent = _EXCELLENT * model.length_mm
     remaining = list(proposals)
     coarse: list[Proposal] = []
     done: list[Proposal] = []  # those of ``coarse`` already refined at full resolution
