@@ -130,3 +130,28 @@ def test_a_steady_misreading_of_many_frames_is_not_averaged_into_the_line(seed: 
     rows = _rows(t, d)
     flag_kinematics(rows)
     assert np.array_equal(np.array([not r["ok"] for r in rows]), bad)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_depth_that_falls_after_the_stop_is_marked(seed: int) -> None:
+    """The tip read further and further back where the insertion seems to stop (a train of bands
+    taken for fluid past a point the array passed): the frames after the stop fall by 0.9-2 mm
+    and are all marked, with the fall; the ramp before is kept but for its last 1-2 frames (the
+    stop is fitted through the falling depths, below where the ramp ended). A stop whose depth
+    holds (the clean insertions above, noise 0.04 mm) is left alone."""
+    rng = np.random.default_rng(300 + seed)
+    n = 30
+    t = np.arange(n) / 30.0
+    stop = int(rng.integers(12, 18))
+    d = 2.0 + 12.0 * np.minimum(t, t[stop]) + rng.normal(0, 0.04, n)
+    fall = float(rng.uniform(0.9, 2.0))
+    d[stop:] -= np.linspace(0.0, fall, n - stop)
+    rows = _rows(t, d)
+    runs, note = flag_kinematics(rows)
+    marked = np.array([not r["ok"] for r in rows])
+    assert not marked[: stop - 2].any()
+    assert marked[stop + 1:].all()
+    assert "after the insertion stops" in note
+    assert all("falls by" in r["reason"] or "off the constant-speed" in r["reason"] for r in rows[stop + 1:])
+    assert sum("falls by" in r["reason"] for r in rows) >= 5
+    assert any(u["off_mm"] < -0.5 for u in runs)

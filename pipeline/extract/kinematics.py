@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import theilslopes
 
 from tympani.pipeline.extract.records import mark_not_ok
 from tympani.pipeline.model.stats import mad_sd
@@ -46,6 +47,9 @@ class KinematicsConfig:
     near : float
         Share (dimensionless) of ``tol_mm`` within which a frame supports a consensus line: the
         line is chosen by the frames that lie near it, not by those it merely keeps.
+    min_after_stop : int
+        Fewest frames with a depth after the insertion stops for their fall to be judged: where
+        it falls by more than the tolerance, the measured ones among them are marked.
     """
 
     tol_mm: float = 0.5
@@ -54,6 +58,7 @@ class KinematicsConfig:
     min_share: float = 0.5
     pairs: int = 400
     near: float = 0.5
+    min_after_stop: int = 4
 
 
 @dataclass(frozen=True)
@@ -271,7 +276,32 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         spans = ", ".join(f"{u['first']}–{u['last']}" if u["last"] > u["first"] else f"{u['first']}" for u in runs)
         note = (f"{len(off)} frame(s) marked not ok off the constant-speed insertion ({fit.speed_mm_s:.3g} mm/s, "
                 f"tolerance {fit.tol_mm:.2f} mm): frames {spans}")
+    if not why:
+        fall = _fall_after_stop(fit, np.array([float(rows[i]["time_s"]) for i in seen]),
+                                np.array([float(rows[i]["depth_mm"]) for i in seen]), cfg)
+        after = [j for j in np.flatnonzero(fit.d0_mm + fit.speed_mm_s * t > fit.hi_mm) if rows[ok[j]]["ok"]]
+        if fall > fit.tol_mm and after:
+            first, last = int(rows[ok[after[0]]]["frame"]), int(rows[ok[after[-1]]]["frame"])
+            for j in after:
+                mark_not_ok(rows[ok[j]], f"kinematics: the depth falls by {fall:.2f} mm after the insertion stops "
+                                         f"(frames {first}-{last}: the tip lost rather than a stop?)")
+            runs.append(dict(first=first, last=last, frames=len(after), off_mm=round(-fall, 3)))
+            note = "; ".join(filter(None, [note, f"{len(after)} frame(s) marked not ok after the insertion stops: "
+                                                 f"their depth falls by {fall:.2f} mm (frames {first}-{last})"]))
     return runs, note
+
+
+def _fall_after_stop(fit: InsertionFit, time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfig) -> float:
+    """How far (mm) the depth falls over the frames after the fitted insertion stops (0 with
+    fewer than ``cfg.min_after_stop`` of them): the Theil-Sen slope of their depth in time
+    across their span. A robot that stops holds the array where it is; a tip read further and
+    further back while the depth should hold was lost (a band or bead train taken for fluid)."""
+    after = fit.d0_mm + fit.speed_mm_s * time_s > fit.hi_mm
+    if int(np.count_nonzero(after)) < cfg.min_after_stop:
+        return 0.0
+    t, d = time_s[after], depth_mm[after]
+    slope = theilslopes(d, t)[0]
+    return float(max(-slope * (t.max() - t.min()), 0.0))
 
 
 def _flag_order(rows: list[dict], seen: list[int], cfg: KinematicsConfig) -> tuple[list[dict], str]:
