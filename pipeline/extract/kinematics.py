@@ -245,8 +245,9 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         return _flag_order(rows, seen, cfg)
     # the insertion is fitted to every frame whose depth was measured, the ones refused for
     # their contact start too (their tip was found), and checked on the measured ones
-    fit = fit_insertion(np.array([float(rows[i]["time_s"]) for i in seen]),
-                        np.array([float(rows[i]["depth_mm"]) for i in seen]), cfg)
+    t_seen = np.array([float(rows[i]["time_s"]) for i in seen])
+    d_seen = np.array([float(rows[i]["depth_mm"]) for i in seen])
+    fit = fit_insertion(t_seen, d_seen, cfg)
     if fit is None or not ok:
         return [], ""
     t = np.array([float(rows[i]["time_s"]) for i in ok])
@@ -277,8 +278,7 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         note = (f"{len(off)} frame(s) marked not ok off the constant-speed insertion ({fit.speed_mm_s:.3g} mm/s, "
                 f"tolerance {fit.tol_mm:.2f} mm): frames {spans}")
     if not why:
-        fall = _fall_after_stop(fit, np.array([float(rows[i]["time_s"]) for i in seen]),
-                                np.array([float(rows[i]["depth_mm"]) for i in seen]), cfg)
+        fall = _fall_after_stop(fit, t_seen, d_seen, cfg)
         after = [j for j in np.flatnonzero(fit.d0_mm + fit.speed_mm_s * t > fit.hi_mm) if rows[ok[j]]["ok"]]
         if fall > fit.tol_mm and after:
             first, last = int(rows[ok[after[0]]]["frame"]), int(rows[ok[after[-1]]]["frame"])

@@ -21,7 +21,14 @@ from tympani.vision.registration.config import RegistrationConfig
 from tympani.vision.registration.frames import Edges
 from tympani.vision.registration.model import WallModel
 from tympani.vision.registration.poses import image_points, similarity_jacobian, updated
-from tympani.vision.registration.refine import FIELD_BLUR_VAR, profiles, refine_signed, solve_step, visible
+from tympani.vision.registration.refine import (
+    FIELD_BLUR_VAR,
+    normal_profiles,
+    profiles,
+    refine_signed,
+    solve_step,
+    visible,
+)
 from tympani.vision.registration.valley import valley_pose, valley_scan
 from tympani.vision.registration.verify import COS_ALIGNED, nearest_pixels, wall_fit_from
 
@@ -203,8 +210,7 @@ def _wall_classes(pose: CameraPose, sfield: np.ndarray, model: WallModel, reach_
     pts, nrm = image_points(pose, model)
     vis = visible(pts, sfield.shape)
     pts, nrm = pts[vis], nrm[vis]
-    prof = profiles(sfield, pts, nrm, np.arange(-reach_px, reach_px + 1e-9, 0.5))
-    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    proj = normal_profiles(sfield, pts, nrm, np.arange(-reach_px, reach_px + 1e-9, 0.5))
     out_of, into = float(proj.max(axis=1).mean()), float((-proj).max(axis=1).mean())
     if min(out_of, into) >= 0.35 * max(out_of, into):
         return (1.0, -1.0)
@@ -521,8 +527,7 @@ def _surface_tables(
     pts, nrm = image_points(pose, model)
     vis = visible(pts, sfield.shape)
     pts, nrm = pts[vis], nrm[vis]
-    prof = profiles(sfield, pts, nrm, t)
-    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    proj = normal_profiles(sfield, pts, nrm, t)
     out_of = np.maximum(proj, 0.0) if 1.0 in classes else np.zeros_like(proj)
     into = np.maximum(-proj, 0.0) if -1.0 in classes else np.zeros_like(proj)
     angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
@@ -622,8 +627,7 @@ def _line_widening(
         return np.zeros(2), 0.0
     h = half_width
     t = np.arange(-abs(h) - reach_px - 1.0, abs(h) + reach_px + 1.0 + 1e-9, 0.5)
-    prof = profiles(sfield, pts, nrm, t)
-    proj = prof[..., 0] * nrm[:, 0:1] + prof[..., 1] * nrm[:, 1:2]
+    proj = normal_profiles(sfield, pts, nrm, t)
     angle = np.arctan2(nrm[:, 1], nrm[:, 0]) % (2.0 * np.pi)
     bins = np.minimum((angle * (n_bins / (2.0 * np.pi))).astype(int), n_bins - 1)
     ends = []

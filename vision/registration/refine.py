@@ -35,6 +35,27 @@ def profiles(fld: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) -
     return cv2.remap(fld, sx, sy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
+def normal_profiles(sfield: np.ndarray, pts: np.ndarray, nrm: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The signed field along each point's normal at offsets ``t`` (px), projected on the normal:
+    ``(n, len(t))``, + where the edges' gradient (dark to bright) points along the normal."""
+    prof = profiles(sfield, pts, nrm, t)
+    proj = prof[..., 0] * nrm[:, 0:1]  # in place from here on (n x len(t) samples)
+    proj += prof[..., 1] * nrm[:, 1:2]
+    return proj
+
+
+def window_moments(proj: np.ndarray, t: np.ndarray, sign: float, expected: float,
+                   sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the weight of the edges of polarity ``sign`` in a Gaussian window (``sigma``,
+    px) about ``expected`` (px along the normal) of :func:`normal_profiles` ``proj`` sampled at
+    ``t``, and their first moment about ``expected``: the moment over the weight is their mean
+    offset, to be scaled by the field's blur gain (``FIELD_BLUR_VAR``)."""
+    a = sign * proj
+    np.maximum(a, 0.0, out=a)
+    a *= np.exp(-0.5 * ((t - expected) / sigma) ** 2)
+    return a.sum(axis=1), a @ (t - expected)
+
+
 def solve_step(jac: np.ndarray, r: np.ndarray, wt: np.ndarray, max_px: float) -> np.ndarray | None:
     """Weighted least-squares step, or None when it is not trustworthy.
 
@@ -152,21 +173,15 @@ def refine_signed(
             break
         if n_vis < len(vis):
             pts, nrm = pts[vis], nrm[vis]
-        prof = profiles(sfield, pts, nrm, t)
-        proj = prof[..., 0] * nrm[:, 0:1]  # in place from here on (n x len(t) samples)
-        proj += prof[..., 1] * nrm[:, 1:2]
+        proj = normal_profiles(sfield, pts, nrm, t)
         base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
         classes = []  # (sign, rows kept, their offsets, their weights) of each polarity
         for sign in (1.0, -1.0):
-            expected = sign * half_width
-            a = sign * proj
-            np.maximum(a, 0.0, out=a)
-            a *= np.exp(-0.5 * ((t - expected) / sigma) ** 2)
-            wsum = a.sum(axis=1)
+            wsum, moment = window_moments(proj, t, sign, sign * half_width, sigma)
             ok = wsum > 1e-3
             if np.count_nonzero(ok) < 10:
                 continue
-            classes.append((sign, ok, gain * (a @ (t - expected))[ok] / wsum[ok], wsum[ok]))
+            classes.append((sign, ok, gain * moment[ok] / wsum[ok], wsum[ok]))
         if not classes:
             break
         # the rows of both classes: the similarity's columns and the half width's (+-1)
@@ -233,18 +248,13 @@ def refine_fringed(
         # the pair's outer edge only where the next wall beyond (across a septum) is far enough
         # for its own fringe to stay clear of it
         clear = model.room_mm[vis] * pose.px_per_mm >= 2.0 * spread + 3.0 * sigma
-        prof = profiles(sfield, pts, nrm, t)
-        proj = prof[..., 0] * nrm[:, 0:1]
-        proj += prof[..., 1] * nrm[:, 1:2]
+        proj = normal_profiles(sfield, pts, nrm, t)
         base, rho = similarity_jacobian(pts, nrm, np.array([pose.centre_x_px, pose.centre_y_px]))
         rows = []  # (d offset / d f, rows kept, their offsets, their weights) of each expected edge
         for cls, side in ((sign, -1.0), (sign, 1.0), (-sign, 0.0)):
-            expected = side * spread
-            a = np.maximum(cls * proj, 0.0)
-            a *= np.exp(-0.5 * ((t - expected) / sigma) ** 2)
-            wsum = a.sum(axis=1)
+            wsum, moment = window_moments(proj, t, cls, side * spread, sigma)
             ok = (wsum > 1e-3) & (clear if side > 0 else True)
-            rows.append((side, ok, gain * (a @ (t - expected))[ok] / wsum[ok], wsum[ok]))
+            rows.append((side, ok, gain * moment[ok] / wsum[ok], wsum[ok]))
         # on the walls clear beyond: how often each edge of the pair shows, and how evenly
         # around the spiral (a fringe lies along every wall, the two copies of doubled walls
         # show apart only where the walls face along their parallax)
@@ -312,9 +322,9 @@ def refine_fringe(pose: CameraPose, edges: Edges, model: WallModel, cfg: Registr
     From ``pose`` refined once more polarity-blind, :func:`refine_fringed` runs for both
     polarities from each of ``cfg.fringe_starts_px``; a result counts where its pair of like
     edges lies at least ``cfg.fringe_min_px`` either side of the wall (a single edge or a line
-    pulls ``f`` to the smallest or largest value allowed instead) and both edges of the pair are
-    found about equally often (the weaker at least ``cfg.fringe_balance`` of the stronger). Of
-    those, the best supported is returned.
+    pulls ``f`` to the smallest or largest value allowed instead), both edges of the pair are
+    found about equally often (the weaker at least ``cfg.fringe_balance`` of the stronger) and
+    evenly around the spiral (``cfg.fringe_evenness``). Of those, the best supported is returned.
     """
     sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     blind = _refine_level(pose, edges.pyramid[0], sub, cfg.refine_sigma_px, iterations=10, tol_px=0.05)
