@@ -1452,9 +1452,10 @@ def test_bands_about_as_long_as_the_body_between_them() -> None:
 def test_a_registration_that_fits_loosely_widens_the_gaps_resolution() -> None:
     """An array on the outer wall for 2.7 rad at 15-18 px/mm, measured with the pose 3.5 px off
     in eight directions at six poses (48 frames; most are refused either way). With the gaps told
-    apart to 2 px, two frames miss the contact entirely (theta_con 0, 2.69 rad short); with a
-    registration whose walls fit to 1.5 px RMS the resolution is 3 px, those two are refused
-    ("contact start unclear") and none measured is off by more than 0.51 rad (measured: 0.500)."""
+    apart to 2 px, one frame misses the contact entirely (theta_con 0, 2.69 rad short; a second
+    one did too, and is now refused either way for a band's brightness past its tip); with a
+    registration whose walls fit to 1.5 px RMS the resolution is 3 px, it is refused ("contact
+    start unclear") and none measured is off by more than 0.51 rad (measured: 0.500)."""
     from tympani.vision.angles.plan import gap_resolution
 
     cfg = MeasureConfig()
@@ -1477,9 +1478,9 @@ def test_a_registration_that_fits_loosely_widens_the_gaps_resolution() -> None:
                     worst[residual].append(abs(m.theta_con - state.truth.theta_con))
                 elif residual and m.reason.startswith("contact start unclear"):
                     unclear += 1
-    assert sum(e > 2.0 for e in worst[0.0]) == 2
-    assert max(worst[1.5]) <= 0.51 and len(worst[1.5]) == len(worst[0.0]) - 2
-    assert unclear >= 2
+    assert sum(e > 2.0 for e in worst[0.0]) == 1
+    assert max(worst[1.5]) <= 0.51 and len(worst[1.5]) == len(worst[0.0]) - 1
+    assert unclear >= 1
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -1515,19 +1516,23 @@ def test_the_darkness_at_the_tip_is_read_over_the_tips_last_stretch(seed: int) -
     assert np.isnan(darkness(1.0))
 
 
-def test_a_band_at_the_very_tip_is_refused_not_read_short() -> None:
+@pytest.mark.parametrize("band_grey", [245.0, 222.0])
+def test_a_band_at_the_very_tip_is_refused_not_read_short(band_grey: float) -> None:
     """Frames drawn here (not by the renderer) of an array 0.7 mm wide on the outer wall whose
-    first band (0.3-0.45 mm, 245 grey levels on fluid of 190, blurred 1 px) begins at the tip, so
+    first band (0.3-0.45 mm, 245 grey levels on fluid of 190, blurred 1 px; or a dim one, 222,
+    drawn 17 % above the fluid and seen 12-13 % above it after the blur) begins at the tip, so
     that no dark cap shows beyond it, at eight random poses (15-35 px/mm). The dark run ends at
     the band and the tip read there was 0.10-0.15 rad short in 7 of 8 frames with ``ok`` true
     (the eighth refused for its contact start); with the band's brightness right past the tip
-    (``band_past_share``) every frame is refused."""
+    (``band_past_share``) every frame is refused. With the dim band and that brightness counted
+    from 15 % above the fluid (``band_level``, which carries the array's run), all 8 passed
+    with ``ok`` true, 0.10-0.15 rad short."""
     for k in range(8):
         rng = np.random.default_rng(800 + k)
         ppm, theta_tip = float(rng.uniform(15.0, 35.0)), float(rng.uniform(2.0, 4.5))
         pose, thickness, radius, line, truth, array = _wall_riding_array(rng, theta_tip, theta_tip - 0.8, ppm, 0.7)
         bands = (0.0, 0.8, float(rng.uniform(0.3, 0.45)), 12)
-        frame = _draw_independent(pose, line, radius, thickness, rng, bands=bands, band_level=245.0, blur_px=1.0)
+        frame = _draw_independent(pose, line, radius, thickness, rng, bands=bands, band_level=band_grey, blur_px=1.0)
         m = measure_frame(frame, _reg(pose), array=array)
         assert not m.ok and m.reason.startswith("a metal band's brightness just past the tip"), (k, m.reason)
 

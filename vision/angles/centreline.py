@@ -324,7 +324,7 @@ def _unlike_tip(edges: Edges, tip_f: float, tip_v: float, plan: MeasurePlan) -> 
     if tip_darkness(view, plan.step_mm, plan.r_tip_mm, margin, cfg.tip_dark_mm) < cfg.tip_dark_min * edges.array_cover:
         return _FAINT  # NaN compares False
     if not edges.bubble and bright_past_tip(view, plan.step_mm, plan.r_tip_mm, margin, cfg.band_past_mm,
-                                            cfg.band_level) >= cfg.band_past_share:
+                                            cfg.band_past_level) >= cfg.band_past_share:
         return _BAND_PAST
     return None
 

@@ -263,6 +263,12 @@ class MeasureConfig:
         that is not found as one is refused too (its bright inside looks the same). On the
         held-out videos above, 27 of the 35 frames it refused had their tip off by more than
         0.1 rad and 8 within 0.05 rad.
+    band_past_level : float
+        Brightness above the fluid, as a share (dimensionless) of the fluid's level, from which
+        a point past the tip counts as a band's for ``band_past_share``: lower than
+        ``band_level`` (which lets bright stretches carry the array's run), since bands only
+        a tenth brighter than the fluid, too dim to carry the run, still show that the array
+        goes on past a dark body ending at its first band.
     cap_min : float
         Stations of the rounded tip closer to the tip than this fraction of its radius are not
         used for edges (farther cap stations are, with the half disc's width).
@@ -367,6 +373,7 @@ class MeasureConfig:
     tip_dark_min: float = 0.5
     band_past_mm: tuple[float, float] = (0.05, 0.25)
     band_past_share: float = 0.6
+    band_past_level: float = 0.10
     cap_min: float = 0.4
     angle_step_mm: float = 0.1
     min_tip_px: float = 8.5
