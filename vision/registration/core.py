@@ -67,6 +67,19 @@ class Fitted:
     fringe: float = 0.0
 
 
+def _fringed_fit(start: CameraPose, edges: Edges, layers: np.ndarray, model: WallModel,
+                 cfg: RegistrationConfig) -> Fitted | None:
+    """The fit of fringed walls near ``start`` (:func:`refine_fringe`) where one is found and
+    passes the fit's tests, else None."""
+    found = refine_fringe(start, edges, model, cfg)
+    if found is None:
+        return None
+    pose, fringe = found
+    result = wall_fit_from(pose, layers, model.subsample(cfg.model_spacing_px / pose.px_per_mm), 0.0,
+                           cfg.inlier_tol_px, fringe=fringe)
+    return None if _fit_failures(result, cfg) else Fitted(pose, 0.0, result, fringe)
+
+
 def _best_pose(
     edges: Edges,
     layers: np.ndarray,
@@ -106,11 +119,9 @@ def _best_pose(
         pose, half_width = refine_fine(start, edges, model, cfg)
         result = Fitted(pose, half_width, fit(pose, cfg.model_spacing_px, half_width))
         if result.fit.residual_px > cfg.fringe_try_residual_px or result.fit.matched_length_mm < excellent:
-            alternative = refine_fringe(start, edges, model, cfg)
+            alternative = _fringed_fit(start, edges, layers, model, cfg)
             if alternative is not None:
-                alternative_fit = fit(alternative[0], cfg.model_spacing_px, 0.0, alternative[1])
-                if not _fit_failures(alternative_fit, cfg):
-                    fringed.append(Fitted(alternative[0], 0.0, alternative_fit, alternative[1]))
+                fringed.append(alternative)
         return result
 
     def refined(start: CameraPose) -> Fitted:
@@ -249,8 +260,7 @@ def register(
             pose, half_width, shift, fit, reasons = (copies.pose, copies.half_width, copies.shift, copies_fit,
                                                      copies_reasons)
             line_offset = copies.offset
-            if swapped:
-                offset = array_axis_offset(gray, pose, phantom)
+            offset = array_axis_offset(gray, pose, phantom) if swapped else copy_offset
     if doubled is None:
         beside = lines_beside_the_edge(edges, layers, pose, half_width, model, cfg)
         if beside is not None:
@@ -265,6 +275,8 @@ def register(
     # more edges to lie near), the walls lie between the pairs; the single fit takes one edge
     # of each pair, and the pairs of neighbouring walls can pull it off scale or pass for doubled walls
     fringe = 0.0
+    if fringed is None and doubled is not None:  # not tried where the single fit lay close: the pairs passed for copies
+        fringed = _fringed_fit(best.pose, edges, layers, model, cfg)
     if fringed is not None and fringed.fit.residual_px <= cfg.fringe_max_residual_px and (reasons or (
             fringed.fit.matched_length_mm >= fit.matched_length_mm
             and fringed.fit.residual_px <= cfg.fringe_residual_share * fit.residual_px)):

@@ -319,7 +319,10 @@ def refine_fringe(pose: CameraPose, edges: Edges, model: WallModel, cfg: Registr
     """The pose and signed fringe (px, :attr:`Registration.fringe_px`) of fringed walls near
     ``pose``, or None where the walls do not look fringed.
 
-    From ``pose`` refined once more polarity-blind, :func:`refine_fringed` runs for both
+    From ``pose`` refined once more polarity-blind (and, where no result from there counts and
+    that refinement moved the walls by ``cfg.fringe_min_px`` or more in the median, from
+    ``pose`` itself: a blind refinement can settle on one edge of each pair, moving the walls
+    by about the fringe across those facing one way), :func:`refine_fringed` runs for both
     polarities from each of ``cfg.fringe_starts_px``; a result counts where its pair of like
     edges lies at least ``cfg.fringe_min_px`` either side of the wall (a single edge or a line
     pulls ``f`` to the smallest or largest value allowed instead), both edges of the pair are
@@ -328,10 +331,21 @@ def refine_fringe(pose: CameraPose, edges: Edges, model: WallModel, cfg: Registr
     """
     sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     blind = _refine_level(pose, edges.pyramid[0], sub, cfg.refine_sigma_px, iterations=10, tol_px=0.05)
+    best = _fringed_from(blind, edges, sub, cfg)
+    moved = np.linalg.norm(image_points(blind, sub)[0] - image_points(pose, sub)[0], axis=1)
+    if best is None and float(np.median(moved)) >= cfg.fringe_min_px:
+        best = _fringed_from(pose, edges, sub, cfg)
+    return best
+
+
+def _fringed_from(origin: CameraPose, edges: Edges, sub: WallModel,
+                  cfg: RegistrationConfig) -> tuple[CameraPose, float] | None:
+    """The best supported fringed fit (pose, signed fringe in px) of :func:`refine_fringe`
+    from ``origin`` that counts, or None."""
     best, best_support = None, 0.0
     for sign in (1.0, -1.0):
         for start in cfg.fringe_starts_px:
-            fitted, fringe, _ = refine_fringed(blind, sign * start, edges.signed, sub, 1.5 * cfg.final_sigma_px, 10,
+            fitted, fringe, _ = refine_fringed(origin, sign * start, edges.signed, sub, 1.5 * cfg.final_sigma_px, 10,
                                                max_fringe=cfg.fringe_max_px)
             fitted, fringe, (inner, outer, middle, evenness) = refine_fringed(fitted, fringe, edges.signed, sub,
                                                                     cfg.final_sigma_px, 20, max_fringe=cfg.fringe_max_px)
