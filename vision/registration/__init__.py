@@ -33,7 +33,9 @@ show as intensity edges (thin lines, region boundaries or both):
    (:func:`~tympani.vision.registration.refine.refine_fringe`): light refracted at a wall can
    show a bright band on one side and a dark band on the other, against the step, so each wall
    shows a pair of edges of the step's polarity either side of it; the wall lies between them.
-   Such a fit replaces the walls found otherwise where it is clearly closer.
+   Such a fit replaces the walls found otherwise where it is clearly closer; it is also tried
+   from the single fit wherever the walls come out doubled (a fit on one edge of each pair can
+   lie so close that the pairs pass for two copies).
 4. **Verification**: along each wall normal, the distance from where the wall's edge is
    expected to the nearest Canny edge of matching orientation. Too few inliers, too little
    of the channel in view or too large a residual mean no phantom: :class:`RegistrationError`

@@ -59,7 +59,9 @@ class RegistrationConfig:
         How several frames are merged before edge detection.
     fringe_try_residual_px : float
         Fringed walls are not fitted from refinements that explain nearly all the walls within
-        this (px, their residual): a fringed fit could not be clearly closer.
+        this (px, their residual): a fringed fit could not be clearly closer. Where such a fit
+        comes out as doubled walls, they are (a fit on one edge of each pair lies that close
+        and the pairs pass for two copies).
     fringe_starts_px : tuple of float
         Half spacings (px) of a fringed wall's like edges from which the fringe fit starts
         (:func:`tympani.vision.registration.refine.refine_fringe`).
