@@ -252,29 +252,58 @@ class TipView:
     tip_v: float
 
 
-def _near_tip(view: TipView, j0: int, j1: int, r_tip_mm: float, margin_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """The strip's stations ``j0 .. j1`` (a 3×3 mean, so that noise does not pass for dark or
-    bright) and, per offset and station, whether the offset lies clear of the walls
-    (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's offset."""
-    a = max(j0 - 1, 0)
-    smooth = cv2.blur(view.fine[:, a : j1 + 2], (3, 3))[:, j0 - a : j1 - a + 1]
-    half = view.half_mm[j0 : j1 + 1]
-    off = view.u[:, None] * half[None, :]
-    near = (np.abs(off) <= (half - margin_mm)[None, :]) & (np.abs(off - view.tip_v) <= r_tip_mm)
-    return smooth, near
+def _near_tip(views: list[TipView], j0: np.ndarray, j1: np.ndarray, r_tip_mm: float,
+              margin_mm: float) -> tuple[np.ndarray, np.ndarray, Ragged, np.ndarray]:
+    """Each view's strip over its stations ``j0 .. j1`` (inclusive; views with none left out),
+    laid end to end: the 3x3 mean of the strip (as ``cv2.blur`` gives it, reflected at the
+    strip's edges and, for 8-bit strips, rounded; noise then does not pass for dark or bright)
+    and, per offset and station, whether
+    the offset lies clear of the walls (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's
+    offset. Returns those, their layout and the indices of the views kept."""
+    kept = np.flatnonzero(j1 >= j0)
+    if not len(kept):
+        return np.zeros((0, 0)), np.zeros((0, 0), bool), Ragged.of([1]), kept
+    rg = Ragged.of((j1 - j0 + 1)[kept])
+    cols = j0[kept][rg.row] + rg.local
+    n = np.array([views[b].fine.shape[1] for b in kept.tolist()])[rg.row]
+    left, right = np.abs(cols - 1), cols + 1
+    right = np.where(right >= n, 2 * (n - 1) - right, right)
+    three = np.concatenate([views[b].fine[:, np.concatenate([left[a], cols[a], right[a]])]
+                            for b, a in zip(kept.tolist(), rg.split(np.arange(len(cols))))], axis=1)
+    k = rg.n[rg.row]
+    pos = 3 * rg.start[rg.row] + rg.local  # each station's own column, then its left and right ones
+    across = three[:, pos + k].astype(np.float64) + three[:, pos] + three[:, pos + 2 * k]
+    m = across.shape[0]
+    padded = across[np.concatenate([[1], np.arange(m), [m - 2]])]
+    smooth = (padded[:-2] + padded[1:-1] + padded[2:]) * (1.0 / 9.0)
+    if views[0].fine.dtype == np.uint8:  # as cv2.blur gives it: rounded to grey levels
+        smooth = np.rint(smooth)
+    half = np.concatenate([views[b].half_mm[a : c + 1] for b, a, c in zip(kept.tolist(), j0[kept].tolist(),
+                                                                           j1[kept].tolist())])
+    tip_v = np.array([views[b].tip_v for b in kept.tolist()])[rg.row]
+    off = views[0].u[:, None] * half[None, :]
+    near = (np.abs(off) <= (half - margin_mm)[None, :]) & (np.abs(off - tip_v[None, :]) <= r_tip_mm)
+    return smooth, near, rg, kept
 
 
-def tip_darkness(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: float,
-                 stretch_mm: tuple[float, float]) -> float:
-    """How dark (coverage: 0 fluid, 1 the array's nominal contrast) the array's last stretch is:
-    the darkest point (3×3 mean) clear of the walls and within the tip radius of the tip's
-    offset, over the stations ``stretch_mm`` (mm, nearest and farthest) basal of the tip; NaN
-    where that stretch has no station.
+def _gathered(views: list[TipView], name: str, kept: np.ndarray, j0: np.ndarray, j1: np.ndarray) -> np.ndarray:
+    """A per-station field (``fluid`` or ``contrast``) of the kept views over their stations
+    ``j0 .. j1``, laid end to end."""
+    return np.concatenate([getattr(views[b], name)[a : c + 1]
+                           for b, a, c in zip(kept.tolist(), j0[kept].tolist(), j1[kept].tolist())])
+
+
+def tip_darkness(views: list[TipView], step_mm: float, r_tip_mm: float, margin_mm: float,
+                 stretch_mm: tuple[float, float]) -> np.ndarray:
+    """How dark (coverage: 0 fluid, 1 the array's nominal contrast) each view's last stretch of
+    array is: the darkest point (3x3 mean) clear of the walls and within the tip radius of the
+    tip's offset, over the stations ``stretch_mm`` (mm, nearest and farthest) basal of the tip;
+    NaN where that stretch has no such point.
 
     Parameters
     ----------
-    view : TipView
-        The frame's strip and tip.
+    views : list of TipView
+        The frames' strips and tips.
     step_mm : float
         Station spacing (mm).
     r_tip_mm : float
@@ -283,50 +312,69 @@ def tip_darkness(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: floa
         Offsets this close (mm) to a wall are not used (a wall line may be dark).
     stretch_mm : tuple of float
         Nearest and farthest distance (mm) basal of the tip of the stations used.
+
+    Returns
+    -------
+    ndarray, shape (len(views),)
     """
-    j0 = max(int(np.ceil(view.tip_f - stretch_mm[1] / step_mm)), 0)
-    j1 = min(int(np.floor(view.tip_f - stretch_mm[0] / step_mm)), view.fine.shape[1] - 1)
-    if j1 < j0:
-        return float("nan")
-    smooth, near = _near_tip(view, j0, j1, r_tip_mm, margin_mm)
-    if not near.any():
-        return float("nan")
-    cover = (view.fluid[j0 : j1 + 1] - smooth) / view.contrast[j0 : j1 + 1]
-    return float(cover[near].max())
+    tip_f = np.array([v.tip_f for v in views], dtype=float)
+    n = np.array([v.fine.shape[1] for v in views], dtype=np.intp)
+    j0 = np.maximum(np.ceil(tip_f - stretch_mm[1] / step_mm).astype(np.intp), 0)
+    j1 = np.minimum(np.floor(tip_f - stretch_mm[0] / step_mm).astype(np.intp), n - 1)
+    out = np.full(len(views), np.nan)
+    smooth, near, rg, kept = _near_tip(views, j0, j1, r_tip_mm, margin_mm)
+    if not len(kept):
+        return out
+    cover = (_gathered(views, "fluid", kept, j0, j1) - smooth) / _gathered(views, "contrast", kept, j0, j1)
+    darkest = np.maximum.reduceat(np.where(near, cover, -np.inf).max(axis=0), rg.start)
+    out[kept] = np.where(np.isfinite(darkest), darkest, np.nan)
+    return out
 
 
-def bright_past_tip(view: TipView, step_mm: float, r_tip_mm: float, margin_mm: float, stretch_mm: tuple[float, float],
-                    band_level: float) -> float:
-    """The share of the stations ``stretch_mm`` (mm, nearest and farthest) past the tip where
-    something as bright as a metal band lies on the array's track: a point (3×3 mean) clear of
-    the walls and within the tip radius of the tip's offset at least ``band_level`` (a fraction
-    of the fluid's level) brighter than the fluid. NaN where fewer than two stations lie there.
-    Parameters as :func:`tip_darkness` (``margin_mm``: a wall line may be bright).
+def bright_past_tip(views: list[TipView], step_mm: float, r_tip_mm: float, margin_mm: float,
+                    stretch_mm: tuple[float, float], band_level: float) -> np.ndarray:
+    """Per view, the share of the stations ``stretch_mm`` (mm, nearest and farthest) past the
+    tip where something as bright as a metal band lies on the array's track: a point (3x3 mean)
+    clear of the walls and within the tip radius of the tip's offset at least ``band_level`` (a
+    fraction of the fluid's level) brighter than the fluid. NaN where fewer than two stations
+    lie there. Parameters as :func:`tip_darkness` (``margin_mm``: a wall line may be bright).
     """
-    j0 = int(np.ceil(view.tip_f + stretch_mm[0] / step_mm))
-    j1 = min(int(np.floor(view.tip_f + stretch_mm[1] / step_mm)), view.fine.shape[1] - 1)
-    if j1 - j0 < 1:
-        return float("nan")
-    smooth, near = _near_tip(view, j0, j1, r_tip_mm, margin_mm)
-    fluid = view.fluid[j0 : j1 + 1]
-    lit = smooth - fluid >= band_level * fluid
-    return float(np.mean((lit & near).any(axis=0)))
+    tip_f = np.array([v.tip_f for v in views], dtype=float)
+    n = np.array([v.fine.shape[1] for v in views], dtype=np.intp)
+    j0 = np.ceil(tip_f + stretch_mm[0] / step_mm).astype(np.intp)
+    j1 = np.minimum(np.floor(tip_f + stretch_mm[1] / step_mm).astype(np.intp), n - 1)
+    j1 = np.where(j1 - j0 >= 1, j1, j0 - 1)  # fewer than two stations: none
+    out = np.full(len(views), np.nan)
+    smooth, near, rg, kept = _near_tip(views, j0, j1, r_tip_mm, margin_mm)
+    if not len(kept):
+        return out
+    fluid = _gathered(views, "fluid", kept, j0, j1)
+    lit = ((smooth - fluid >= band_level * fluid) & near).any(axis=0)
+    out[kept] = rg.count(lit) / rg.n
+    return out
 
 
-def _unlike_tip(edges: Edges, tip_f: float, tip_v: float, plan: MeasurePlan) -> str | None:
-    """Why a frame's tip is not the array's end (its last stretch fainter than the array, or, no
-    bubble found, a band's brightness just past it), or None. ``tip_f`` is the tip's fractional
-    station from ``edges.lo`` and ``tip_v`` its offset (mm)."""
+def _unlike_tips(plan: MeasurePlan, edges: list[Edges], tip_f: np.ndarray, tip_v: np.ndarray) -> list[str | None]:
+    """Why each frame's tip is not the array's end (its last stretch fainter than the array, or,
+    no bubble found, a band's brightness just past it), or None. ``tip_f`` is each tip's
+    fractional station from its ``edges.lo`` and ``tip_v`` its offset (mm)."""
     cfg = plan.cfg
-    view = TipView(edges.fine, edges.fluid, edges.contrast, plan.half_mm[edges.lo : edges.lo + edges.fine.shape[1]],
-                   plan.u, tip_f, tip_v)
+    views = [TipView(e.fine, e.fluid, e.contrast, plan.half_mm[e.lo : e.lo + e.fine.shape[1]], plan.u, f, v)
+             for e, f, v in zip(edges, tip_f.tolist(), tip_v.tolist())]
+    if not views:
+        return []
     margin = cfg.wall_margin_px / float(plan.pose.px_per_mm)
-    if tip_darkness(view, plan.step_mm, plan.r_tip_mm, margin, cfg.tip_dark_mm) < cfg.tip_dark_min * edges.array_cover:
-        return _FAINT  # NaN compares False
-    if not edges.bubble and bright_past_tip(view, plan.step_mm, plan.r_tip_mm, margin, cfg.band_past_mm,
-                                            cfg.band_past_level) >= cfg.band_past_share:
-        return _BAND_PAST
-    return None
+    dark = tip_darkness(views, plan.step_mm, plan.r_tip_mm, margin, cfg.tip_dark_mm)
+    faint = dark < cfg.tip_dark_min * np.array([e.array_cover for e in edges])  # NaN compares False
+    out: list[str | None] = [_FAINT if f else None for f in faint.tolist()]
+    ask = [b for b, e in enumerate(edges) if not faint[b] and not e.bubble]
+    if ask:
+        shares = bright_past_tip([views[b] for b in ask], plan.step_mm, plan.r_tip_mm, margin, cfg.band_past_mm,
+                                 cfg.band_past_level)
+        for b, share in zip(ask, shares.tolist()):
+            if share >= cfg.band_past_share:
+                out[b] = _BAND_PAST
+    return out
 
 
 def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, tip: float, track: float,
@@ -389,6 +437,38 @@ def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, ti
     return fall + min(max((a - level) / max(a - b, 1e-6), 0.0), 1.0)
 
 
+def _with_falls(edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, rows: np.ndarray,
+                level: np.ndarray) -> np.ndarray:
+    """The frames (indices) where :func:`speck_cut` may find a speck: room for the array's end, a
+    gap and more between the last station with measured edges (``last``) and the tip
+    (fractional station ``tip_f``), and there a fall of the coverage along the track (the mean
+    over the fractional offset indices ``rows``, shape (B, 3)) below ``level`` that rises again
+    before the tip. All frames' stretches at once, computed as :func:`speck_cut`'s caller does."""
+    frames = np.flatnonzero(tip_f > last + 3.0)
+    if not len(frames):
+        return frames
+    s0 = last[frames].astype(np.intp)
+    n = np.array([edges[i].fine.shape[1] for i in frames.tolist()], dtype=np.intp)
+    rg = Ragged.of(np.minimum(tip_f[frames].astype(np.intp) + 2, n) - s0)
+    j = rows[frames].astype(int)
+    f = rows[frames] - j
+    near = np.concatenate([edges[i].fine[np.concatenate([j[c], j[c] + 1]), a : a + k]
+                           for c, (i, a, k) in enumerate(zip(frames.tolist(), s0.tolist(), rg.n.tolist()))], axis=1)
+    fluid, contrast = (np.concatenate([getattr(edges[i], name)[a : a + k]
+                                       for i, a, k in zip(frames.tolist(), s0.tolist(), rg.n.tolist())])
+                       for name in ("fluid", "contrast"))
+    cover = (fluid[None, :] - near) / contrast[None, :]
+    f = f[rg.row].T
+    along = ((1.0 - f) * cover[:3] + f * cover[3:]).mean(axis=0)
+    above = along >= level[frames][rg.row]
+    end = np.floor(tip_f[frames] - s0).astype(np.intp)[rg.row]  # the last fall, the tip
+    after = np.append(above[1:], False)
+    fall = np.where(above & ~after & (rg.local < np.minimum(end, rg.n[rg.row] - 1)), rg.local, np.iinfo(np.intp).max)
+    first = np.minimum.reduceat(fall, rg.start)[rg.row]
+    rises = rg.count(above & (rg.local > first) & (rg.local <= end))
+    return frames[rises > 0]
+
+
 def _before_specks(plan: MeasurePlan, edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, tip_u: np.ndarray,
                    level: np.ndarray) -> np.ndarray:
     """Each frame's tip (fractional station from its ``lo``) moved back to the gap of fluid before
@@ -401,7 +481,7 @@ def _before_specks(plan: MeasurePlan, edges: list[Edges], last: np.ndarray, tip_
     track = (tip_u - float(u[0])) / du
     rows = np.clip(track[:, None] + np.array([-1.0, 0.0, 1.0]), 0, len(u) - 1.001)
     out = tip_f.copy()
-    for i in np.flatnonzero(tip_f > last + 3.0).tolist():  # room for the array's end, a gap and more
+    for i in _with_falls(edges, last, tip_f, rows, level).tolist():
         e, s0 = edges[i], int(last[i])
         a = slice(s0, int(tip_f[i]) + 2)
         cover = (e.fluid[None, a] - e.fine[:, a]) / e.contrast[None, a]
@@ -538,9 +618,9 @@ def centre_line_batch(plan: MeasurePlan, edges: list[Edges]) -> list[CentreLine 
     (centre, gap), _ = smooth_ragged(np.vstack([v_c[sub], (half - v_c - radius * stretch)[sub]]), ok, part, k_smooth)
     line = point[sub] + centre[:, None] * normal[sub]
     radius = radius[sub]
-    for b, s0, m_b in zip(keep.tolist(), part.start.tolist(), part.n.tolist()):
+    unlike = _unlike_tips(plan, [edges[int(live[b])] for b in keep.tolist()], tip_f[keep], (tip_u * half_tip)[keep])
+    for b, s0, m_b, reason in zip(keep.tolist(), part.start.tolist(), part.n.tolist(), unlike):
         e = edges[int(live[b])]
-        reason = _unlike_tip(e, float(tip_f[b]), float(tip_u[b] * half_tip[b]), plan)
         if reason is None and bands_beside(e, float(tip_f[b]), plan):
             reason = _BESIDE
         if reason is not None:
