@@ -1585,8 +1585,8 @@ def test_the_tip_checks_mean_is_cv2_blurs() -> None:
                                  0.0, 0.0))
             j0.append(int(rng.integers(0, n)))
             j1.append(int(rng.integers(j0[-1], n)))
-        smooth, _, rg, kept = _near_tip(views, np.array(j0), np.array(j1), 0.3, 0.1)
-        assert len(kept) == 30
+        kept = np.arange(30)
+        smooth, _, rg = _near_tip(views, kept, np.array(j0), np.array(j1), 0.3, 0.1)
         for i, part in zip(kept.tolist(), rg.split(np.arange(smooth.shape[1]))):
             a = max(j0[i] - 1, 0)
             expected = cv2.blur(views[i].fine[:, a : j1[i] + 2], (3, 3))[:, j0[i] - a : j1[i] - a + 1]

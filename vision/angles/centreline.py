@@ -252,17 +252,13 @@ class TipView:
     tip_v: float
 
 
-def _near_tip(views: list[TipView], j0: np.ndarray, j1: np.ndarray, r_tip_mm: float,
-              margin_mm: float) -> tuple[np.ndarray, np.ndarray, Ragged, np.ndarray]:
-    """Each view's strip over its stations ``j0 .. j1`` (inclusive; views with none left out),
+def _near_tip(views: list[TipView], kept: np.ndarray, j0: np.ndarray, j1: np.ndarray, r_tip_mm: float,
+              margin_mm: float) -> tuple[np.ndarray, np.ndarray, Ragged]:
+    """The ``kept`` views' strips (at least one) over their stations ``j0 .. j1`` (inclusive),
     laid end to end: the 3x3 mean of the strip (as ``cv2.blur`` gives it, reflected at the
     strip's edges and, for 8-bit strips, rounded; noise then does not pass for dark or bright)
-    and, per offset and station, whether
-    the offset lies clear of the walls (``margin_mm``) within ``r_tip_mm`` (mm) of the tip's
-    offset. Returns those, their layout and the indices of the views kept."""
-    kept = np.flatnonzero(j1 >= j0)
-    if not len(kept):
-        return np.zeros((0, 0)), np.zeros((0, 0), bool), Ragged.of([1]), kept
+    and, per offset and station, whether the offset lies clear of the walls (``margin_mm``)
+    within ``r_tip_mm`` (mm) of the tip's offset. Returns those and their layout."""
     rg = Ragged.of((j1 - j0 + 1)[kept])
     cols = j0[kept][rg.row] + rg.local
     n = np.array([views[b].fine.shape[1] for b in kept.tolist()])[rg.row]
@@ -283,13 +279,14 @@ def _near_tip(views: list[TipView], j0: np.ndarray, j1: np.ndarray, r_tip_mm: fl
     tip_v = np.array([views[b].tip_v for b in kept.tolist()])[rg.row]
     off = views[0].u[:, None] * half[None, :]
     near = (np.abs(off) <= (half - margin_mm)[None, :]) & (np.abs(off - tip_v[None, :]) <= r_tip_mm)
-    return smooth, near, rg, kept
+    return smooth, near, rg
 
 
-def _gathered(views: list[TipView], name: str, kept: np.ndarray, j0: np.ndarray, j1: np.ndarray) -> np.ndarray:
-    """A per-station field (``fluid`` or ``contrast``) of the kept views over their stations
-    ``j0 .. j1``, laid end to end."""
-    return np.concatenate([getattr(views[b], name)[a : c + 1]
+def _gathered(frames: list[TipView] | list[Edges], name: str, kept: np.ndarray, j0: np.ndarray,
+              j1: np.ndarray) -> np.ndarray:
+    """A per-station field (``fluid`` or ``contrast``) of the ``kept`` frames over their stations
+    ``j0 .. j1`` (inclusive), laid end to end."""
+    return np.concatenate([getattr(frames[b], name)[a : c + 1]
                            for b, a, c in zip(kept.tolist(), j0[kept].tolist(), j1[kept].tolist())])
 
 
@@ -322,9 +319,10 @@ def tip_darkness(views: list[TipView], step_mm: float, r_tip_mm: float, margin_m
     j0 = np.maximum(np.ceil(tip_f - stretch_mm[1] / step_mm).astype(np.intp), 0)
     j1 = np.minimum(np.floor(tip_f - stretch_mm[0] / step_mm).astype(np.intp), n - 1)
     out = np.full(len(views), np.nan)
-    smooth, near, rg, kept = _near_tip(views, j0, j1, r_tip_mm, margin_mm)
+    kept = np.flatnonzero(j1 >= j0)
     if not len(kept):
         return out
+    smooth, near, rg = _near_tip(views, kept, j0, j1, r_tip_mm, margin_mm)
     cover = (_gathered(views, "fluid", kept, j0, j1) - smooth) / _gathered(views, "contrast", kept, j0, j1)
     darkest = np.maximum.reduceat(np.where(near, cover, -np.inf).max(axis=0), rg.start)
     out[kept] = np.where(np.isfinite(darkest), darkest, np.nan)
@@ -343,11 +341,11 @@ def bright_past_tip(views: list[TipView], step_mm: float, r_tip_mm: float, margi
     n = np.array([v.fine.shape[1] for v in views], dtype=np.intp)
     j0 = np.ceil(tip_f + stretch_mm[0] / step_mm).astype(np.intp)
     j1 = np.minimum(np.floor(tip_f + stretch_mm[1] / step_mm).astype(np.intp), n - 1)
-    j1 = np.where(j1 - j0 >= 1, j1, j0 - 1)  # fewer than two stations: none
     out = np.full(len(views), np.nan)
-    smooth, near, rg, kept = _near_tip(views, j0, j1, r_tip_mm, margin_mm)
+    kept = np.flatnonzero(j1 - j0 >= 1)  # at least two stations
     if not len(kept):
         return out
+    smooth, near, rg = _near_tip(views, kept, j0, j1, r_tip_mm, margin_mm)
     fluid = _gathered(views, "fluid", kept, j0, j1)
     lit = ((smooth - fluid >= band_level * fluid) & near).any(axis=0)
     out[kept] = rg.count(lit) / rg.n
@@ -447,17 +445,17 @@ def _with_falls(edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, rows: n
     frames = np.flatnonzero(tip_f > last + 3.0)
     if not len(frames):
         return frames
-    s0 = last[frames].astype(np.intp)
-    n = np.array([edges[i].fine.shape[1] for i in frames.tolist()], dtype=np.intp)
-    rg = Ragged.of(np.minimum(tip_f[frames].astype(np.intp) + 2, n) - s0)
+    lo = last.astype(np.intp)
+    n = np.array([e.fine.shape[1] for e in edges], dtype=np.intp)
+    hi = np.minimum(tip_f.astype(np.intp) + 2, n) - 1  # the stretch speck_cut's caller takes
+    s0 = lo[frames]
+    rg = Ragged.of(hi[frames] + 1 - s0)
     j = rows[frames].astype(int)
     f = rows[frames] - j
     near = np.concatenate([edges[i].fine[np.concatenate([j[c], j[c] + 1]), a : a + k]
                            for c, (i, a, k) in enumerate(zip(frames.tolist(), s0.tolist(), rg.n.tolist()))], axis=1)
-    fluid, contrast = (np.concatenate([getattr(edges[i], name)[a : a + k]
-                                       for i, a, k in zip(frames.tolist(), s0.tolist(), rg.n.tolist())])
-                       for name in ("fluid", "contrast"))
-    cover = (fluid[None, :] - near) / contrast[None, :]
+    fluid, contrast = (_gathered(edges, name, frames, lo, hi)[None, :] for name in ("fluid", "contrast"))
+    cover = (fluid - near) / contrast
     f = f[rg.row].T
     along = ((1.0 - f) * cover[:3] + f * cover[3:]).mean(axis=0)
     above = along >= level[frames][rg.row]

@@ -275,7 +275,9 @@ def register(
     # more edges to lie near), the walls lie between the pairs; the single fit takes one edge
     # of each pair, and the pairs of neighbouring walls can pull it off scale or pass for doubled walls
     fringe = 0.0
-    if fringed is None and doubled is not None:  # not tried where the single fit lay close: the pairs passed for copies
+    if fringed is None and doubled is not None:
+        # none found from the proposals (nor tried where the single fit lay within
+        # cfg.fringe_try_residual_px): from the single fit, whose pairs passed for copies
         fringed = _fringed_fit(best.pose, edges, layers, model, cfg)
     if fringed is not None and fringed.fit.residual_px <= cfg.fringe_max_residual_px and (reasons or (
             fringed.fit.matched_length_mm >= fit.matched_length_mm

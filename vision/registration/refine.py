@@ -332,9 +332,10 @@ def refine_fringe(pose: CameraPose, edges: Edges, model: WallModel, cfg: Registr
     sub = model.subsample(cfg.model_spacing_px / pose.px_per_mm)
     blind = _refine_level(pose, edges.pyramid[0], sub, cfg.refine_sigma_px, iterations=10, tol_px=0.05)
     best = _fringed_from(blind, edges, sub, cfg)
-    moved = np.linalg.norm(image_points(blind, sub)[0] - image_points(pose, sub)[0], axis=1)
-    if best is None and float(np.median(moved)) >= cfg.fringe_min_px:
-        best = _fringed_from(pose, edges, sub, cfg)
+    if best is None:
+        moved = np.linalg.norm(image_points(blind, sub)[0] - image_points(pose, sub)[0], axis=1)
+        if float(np.median(moved)) >= cfg.fringe_min_px:
+            best = _fringed_from(pose, edges, sub, cfg)
     return best
 
 
