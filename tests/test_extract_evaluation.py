@@ -125,6 +125,19 @@ def test_another_renderer_given_as_a_file(tmp_path, capsys):
     capsys.readouterr()
 
 
+def test_a_renderer_file_with_dataclasses_loads(tmp_path):
+    """A renderer file is loaded as a module that can be looked up by name while it runs, as
+    ``dataclasses`` (and pickling) do: one defining a dataclass used to fail to load."""
+    from tympani.pipeline.extract.evaluation import load_renderer
+
+    renderer = tmp_path / "with_dataclass.py"
+    renderer.write_text("from dataclasses import dataclass\n\n@dataclass(frozen=True)\nclass Look:\n"
+                        "    fluid: float = 0.8\n\nNUISANCE_KEYS = ('bubbles',)\n\n"
+                        "def render_video(path, seed, **kw):\n    return Look().fluid\n", encoding="utf-8")
+    module = load_renderer(str(renderer))
+    assert module.NUISANCE_KEYS == ("bubbles",) and module.render_video("x.mp4", 0) == 0.8
+
+
 @pytest.mark.parametrize("text, problem", [
     (None, "no such renderer file"),
     ("x = 1\n", "the renderer defines no NUISANCE_KEYS and no render_video"),

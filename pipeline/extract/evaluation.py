@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib.util
 import multiprocessing
 import os
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -81,11 +82,15 @@ def load_renderer(path: str) -> ModuleType:
         return renderer_c
     if not Path(path).is_file():
         raise InputError(path, "no such renderer file")
-    spec = importlib.util.spec_from_file_location(f"tympani_renderer_{abs(hash(str(Path(path).resolve())))}", path)
+    name = f"tympani_renderer_{abs(hash(str(Path(path).resolve())))}"
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    # registered while it runs, as an import would: dataclasses and pickling look the module up by name
+    sys.modules[name] = module
     try:
         spec.loader.exec_module(module)  # type: ignore[union-attr]
     except Exception as exc:  # the renderer's own code: any failure to load is the file's
+        del sys.modules[name]
         raise InputError(path, f"the renderer does not load: {one_line(exc)}") from exc
     missing = [name for name in ("NUISANCE_KEYS", "render_video") if not hasattr(module, name)]
     if missing:
