@@ -11,6 +11,7 @@ import pytest
 from tympani.pipeline.extract.evaluation import (
     EvaluationConfig,
     VideoCase,
+    copy_counts,
     draw_case,
     evaluate_extraction,
     score_video,
@@ -20,7 +21,7 @@ from tympani.pipeline.synthetic.renderer_c import render_frames
 from tympani.vision.angles import measure_frame, prepare_measurement
 from tympani.vision.geometry import CameraPose
 from tympani.vision.greyscale import to_gray
-from tympani.vision.registration import register
+from tympani.vision.registration import Registration, register
 
 
 def test_cases_are_drawn_from_the_seed_alone():
@@ -43,7 +44,8 @@ def test_a_wrong_frame_marked_ok_counts_as_gross_only_there():
     table.loc[3, ["theta_tip", "theta_bot", "theta_con"]] = np.nan
     table.loc[4, "theta_tip"] += 0.01
     pose = {"centre_x_px": 100.0, "centre_y_px": 50.0, "px_per_mm": 20.0, "mirrored": False}
-    registered = CameraPose(centre_x_px=103.0, centre_y_px=54.0, rotation_rad=0.0, px_per_mm=20.2, mirrored=False)
+    registered = Registration(CameraPose(centre_x_px=103.0, centre_y_px=54.0, rotation_rad=0.0, px_per_mm=20.2,
+                                         mirrored=False), residual_px=0.5)
     case = VideoCase(1, (640, 480), None, {"bubbles": 0.5})
     score, frames = score_video(case, table, truth, pose, registered, EvaluationConfig())
     assert (score.frames, score.measured, score.contact_frames, score.gross, score.gross_contact) == (5, 4, 3, 2, 1)
@@ -51,6 +53,41 @@ def test_a_wrong_frame_marked_ok_counts_as_gross_only_there():
     assert score.tip_median_rad == pytest.approx(0.005) and score.con_median_rad == pytest.approx(0.0)
     assert score.centre_error_px == pytest.approx(5.0) and score.scale_error_pct == pytest.approx(1.0)
     assert score.mirror_ok and score.bubbles == 0.5
+
+
+@pytest.mark.parametrize("centre, doubled, expected", [
+    ((104.0, 47.0), (-4.0, 3.0), (5.0, 5.0, 0.0)),     # on the other copy: its centre is the truth
+    ((102.0, 48.5), (-4.0, 3.0), (2.5, 5.0, 2.5)),     # half way between the copies
+    ((100.0, 50.0), (-4.0, 3.0), (0.0, 5.0, 5.0)),     # on the right copy
+    ((101.0, 50.0), None, (1.0, 0.0, float("nan"))),   # single walls
+])
+def test_the_score_says_whether_the_registration_took_the_other_copy(centre, doubled, expected):
+    """``other_copy_error_px``: the centre error had the registration taken the other copy of
+    walls it found twice (the copy ``parallax_px`` away), so a registration on the wrong copy
+    shows as a centre error of about the parallax with this near 0."""
+    truth = pd.DataFrame({"frame": [0], "theta_tip": [1.0], "theta_bot": [1.0], "theta_con": [0.0],
+                          "in_contact": [False]})
+    table = truth.drop(columns="in_contact").assign(ok=True, reason="")
+    pose = {"centre_x_px": 100.0, "centre_y_px": 50.0, "px_per_mm": 20.0, "mirrored": False}
+    registered = Registration(CameraPose(*centre, rotation_rad=0.0, px_per_mm=20.0), residual_px=0.5,
+                              walls_doubled=doubled is not None, parallax_px=doubled or (0.0, 0.0))
+    score, _ = score_video(VideoCase(1, (640, 480), None, {}), table, truth, pose, registered, EvaluationConfig())
+    assert (score.centre_error_px, score.parallax_px) == pytest.approx(expected[:2])
+    assert score.walls_doubled_found == (doubled is not None)
+    assert score.other_copy_error_px == pytest.approx(expected[2], nan_ok=True)
+
+
+def test_the_summary_counts_registrations_off_on_doubled_walls():
+    """Of the videos whose walls were found twice: those more than 1 px off, on the other copy
+    (within 1 px of it) or elsewhere; single walls and failed videos are not counted."""
+    results = pd.DataFrame({
+        "walls_doubled_found": [True, True, True, True, False, False],
+        "centre_error_px": [0.4, 5.0, 2.5, 3.0, 4.0, float("nan")],
+        "other_copy_error_px": [5.1, 0.3, 2.6, 0.9, float("nan"), float("nan")],
+        "error": ["", "", "", "", "", "registration failed"],
+    })
+    assert copy_counts(results[results["error"] == ""]) == {"doubled_found": 4, "doubled_off": 3,
+                                                         "doubled_other_copy": 2, "doubled_between": 1}
 
 
 def test_a_clean_video_end_to_end(tmp_path):
@@ -123,6 +160,34 @@ def test_another_renderer_given_as_a_file(tmp_path, capsys):
     assert videos["measured"].tolist() == [12] and videos["gross_contact"].tolist() == [0]
     assert draw_case(7, "harsh", ("noise", "bubbles")).nuisance.keys() == {"noise", "bubbles"}
     capsys.readouterr()
+
+
+_WRAPPER = """from tympani.pipeline.synthetic import renderer_c
+NUISANCE_KEYS = renderer_c.NUISANCE_KEYS
+
+def render_video(path, seed, *, n_frames, size, px_per_mm, nuisance):
+    truth, info = renderer_c.render_video(path, seed, n_frames=n_frames, size=size, px_per_mm=px_per_mm,
+                                          nuisance=nuisance)
+    {change}
+"""
+
+
+@pytest.mark.parametrize("change, problem", [
+    ("return truth, {'pose': {k: v for k, v in info['pose'].items() if k != 'mirrored'}}", "a pose without mirrored"),
+    ("return truth.drop(columns=['in_contact', 'theta_con']), info", "a truth table without theta_con, in_contact"),
+    ("return truth", "something other than a (truth, info) pair"),
+    ("return truth, {}", "an info without a 'pose' dict"),
+])
+def test_a_renderer_that_breaks_its_contract_is_a_one_line_error(tmp_path, capsys, change, problem):
+    """What ``render_video`` returns is checked: a missing pose key or truth column names the
+    renderer file and what is missing (exit 2), rather than failing later with a bare KeyError."""
+    from tympani.pipeline.cli import main
+
+    renderer = tmp_path / "r.py"
+    renderer.write_text(_WRAPPER.format(change=change), encoding="utf-8")
+    assert main(["evaluate-extraction", "--renderer", str(renderer), "--videos", "1", "--frames", "3",
+                 "--out", str(tmp_path / "e"), "-q"]) == 2
+    assert capsys.readouterr().err.strip() == f"tympani: {renderer}: render_video returned {problem}"
 
 
 def test_a_renderer_file_with_dataclasses_loads(tmp_path):

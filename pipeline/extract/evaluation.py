@@ -32,6 +32,7 @@ from tympani.pipeline.extract.video import extract_video
 from tympani.pipeline.io import atomic_write_csv, check_writable_dir
 from tympani.pipeline.synthetic import renderer_c
 from tympani.vision.errors import InputError, one_line
+from tympani.vision.registration import Registration
 
 #: How the nuisances of a video are drawn: none; each off with probability 0.3, else of strength
 #: U(0.1, 1); every one at U(0.3, 1) with bubbles at U(0.5, 1) and doubled walls in 60 % of videos.
@@ -111,7 +112,14 @@ class VideoCase:
 
 @dataclass(frozen=True)
 class VideoScore:
-    """The scores of one video (angles in rad; NaN where no frame qualifies)."""
+    """The scores of one video (angles in rad; NaN where no frame qualifies).
+
+    ``walls_doubled_found`` says whether the registration found the walls twice, ``parallax_px``
+    how far apart it found the copies (px), and ``other_copy_error_px`` the centre error had it
+    taken the other copy (px; NaN for single walls): a ``centre_error_px`` near the parallax with
+    ``other_copy_error_px`` near 0 is a registration on the wrong copy, both well above 0 one
+    between the copies.
+    """
 
     seed: int
     width_px: int
@@ -131,6 +139,9 @@ class VideoScore:
     mirror_ok: bool
     reasons: str
     error: str = ""
+    walls_doubled_found: bool = False
+    parallax_px: float = 0.0
+    other_copy_error_px: float = float("nan")
 
 
 def draw_case(seed: int, mode: str, keys: tuple[str, ...] = renderer_c.NUISANCE_KEYS) -> VideoCase:
@@ -164,7 +175,7 @@ def _video_fields(case: VideoCase, pose: dict) -> dict:
                 doubled_walls=case.nuisance.get("doubled_walls", 0.0), bubbles=case.nuisance.get("bubbles", 0.0))
 
 
-def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose: dict, registration_pose,
+def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose: dict, registration: Registration,
                 cfg: EvaluationConfig) -> tuple[VideoScore, pd.DataFrame]:
     """Score an extracted angles table against the renderer's truth.
 
@@ -179,8 +190,8 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
         ``in_contact``).
     pose : dict
         The renderer's pose (``centre_x_px``, ``centre_y_px``, ``px_per_mm``, ``mirrored``).
-    registration_pose : CameraPose
-        The pose tympani registered.
+    registration : Registration
+        What tympani registered (its pose, and the parallax where it found the walls twice).
     cfg : EvaluationConfig
         Gross-error thresholds.
 
@@ -196,18 +207,59 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
     contact = m["in_contact"].astype(bool)
     tip, bot, con = ((m[c] - m[f"{c}_t"]).abs() for c in ("theta_tip", "theta_bot", "theta_con"))
     gross = ok & ((tip > cfg.gross_tip_rad) | (con > cfg.gross_con_rad))
+    reg_centre = np.array([registration.pose.centre_x_px, registration.pose.centre_y_px])
+    truth_centre = np.array([pose["centre_x_px"], pose["centre_y_px"]])
+    parallax = np.asarray(registration.parallax_px, dtype=float) if registration.walls_doubled else np.zeros(2)
     score = VideoScore(
         **_video_fields(case, pose),
         frames=len(m), measured=int(ok.sum()), contact_frames=int(contact.sum()),
         gross_contact=int((gross & contact).sum()), gross=int(gross.sum()),
         tip_median_rad=_median(tip[ok]), bot_median_rad=_median(bot[ok]), con_median_rad=_median(con[ok & contact]),
-        centre_error_px=float(np.hypot(registration_pose.centre_x_px - pose["centre_x_px"],
-                                       registration_pose.centre_y_px - pose["centre_y_px"])),
-        scale_error_pct=float(100.0 * (registration_pose.px_per_mm / pose["px_per_mm"] - 1.0)),
-        mirror_ok=bool(registration_pose.mirrored == pose["mirrored"]),
+        centre_error_px=float(np.hypot(*(reg_centre - truth_centre))),
+        scale_error_pct=float(100.0 * (registration.pose.px_per_mm / pose["px_per_mm"] - 1.0)),
+        mirror_ok=bool(registration.pose.mirrored == pose["mirrored"]),
         reasons="; ".join(sorted(set(m.loc[~ok, "reason"].astype(str).str[:50]))),
+        walls_doubled_found=bool(registration.walls_doubled),
+        parallax_px=float(np.hypot(*parallax)),
+        other_copy_error_px=float(np.hypot(*(reg_centre + parallax - truth_centre))) if registration.walls_doubled
+        else float("nan"),
     )
     return score, m.assign(gross=gross)
+
+
+_TRUTH_COLUMNS = ("frame", "theta_tip", "theta_bot", "theta_con", "in_contact")
+_POSE_KEYS = ("centre_x_px", "centre_y_px", "px_per_mm", "mirrored")
+
+
+def checked_render(result: object, renderer: str) -> tuple[pd.DataFrame, dict]:
+    """The truth table and pose of what a renderer's ``render_video`` returned, checked against
+    the contract of :func:`load_renderer`.
+
+    Raises
+    ------
+    InputError
+        Naming the renderer file (``renderer``; renderer C when empty) and what is missing.
+    """
+    name = renderer or "renderer C"
+
+    def refuse(problem: str) -> InputError:
+        return InputError(name, f"render_video returned {problem}")
+
+    if not (isinstance(result, tuple) and len(result) == 2):
+        raise refuse("something other than a (truth, info) pair")
+    truth, info = result
+    if not isinstance(truth, pd.DataFrame):
+        raise refuse(f"a truth of type {type(truth).__name__}, not a table")
+    missing = [c for c in _TRUTH_COLUMNS if c not in truth.columns]
+    if missing:
+        raise refuse(f"a truth table without {', '.join(missing)}")
+    pose = info.get("pose") if isinstance(info, dict) else None
+    if not isinstance(pose, dict):
+        raise refuse("an info without a 'pose' dict")
+    missing = [k for k in _POSE_KEYS if k not in pose]
+    if missing:
+        raise refuse(f"a pose without {', '.join(missing)}")
+    return truth, pose
 
 
 def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig = EvaluationConfig()) -> VideoScore:
@@ -218,10 +270,9 @@ def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig 
     case = draw_case(seed, cfg.nuisance, tuple(renderer.NUISANCE_KEYS))
     out = Path(out_dir)
     path = out / f"v{seed}.mp4"
-    truth, info = renderer.render_video(path, seed, n_frames=cfg.frames, size=case.size, px_per_mm=case.px_per_mm,
-                                        nuisance=case.nuisance)
+    truth, pose = checked_render(renderer.render_video(path, seed, n_frames=cfg.frames, size=case.size,
+                                                       px_per_mm=case.px_per_mm, nuisance=case.nuisance), cfg.renderer)
     atomic_write_csv(out / f"v{seed}_truth.csv", truth)
-    pose = info["pose"]
     try:
         table, registration = extract_video(path, ExtractConfig(), fps=30.0)
     except InputError as exc:  # a refusal of the whole video (no phantom found) is a result too
@@ -230,7 +281,7 @@ def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig 
                           contact_frames=int(truth["in_contact"].astype(bool).sum()), gross_contact=0, gross=0,
                           tip_median_rad=nan, bot_median_rad=nan, con_median_rad=nan, centre_error_px=nan,
                           scale_error_pct=nan, mirror_ok=False, reasons="", error=one_line(exc)[:200])
-    score, frames = score_video(case, table, truth, pose, registration.pose, cfg)
+    score, frames = score_video(case, table, truth, pose, registration, cfg)
     atomic_write_csv(out / f"v{seed}_frames.csv", frames)
     return score
 
@@ -272,7 +323,19 @@ def summarise(results: pd.DataFrame) -> dict[str, float]:
         "centre_error_max_px": float(done["centre_error_px"].max()),
         "scale_error_max_pct": float(done["scale_error_pct"].abs().max()),
         "mirror_wrong": int((~done["mirror_ok"].astype(bool)).sum()),
+        **copy_counts(done),
     }
+
+
+def copy_counts(done: pd.DataFrame, within_px: float = 1.0) -> dict[str, int]:
+    """How the registration fared where it found the walls twice: the videos where it did, and
+    of those, how many lie more than ``within_px`` (px) from the renderer's centre, on the other
+    copy (within ``within_px`` of it) or elsewhere (between the copies)."""
+    found = done[done["walls_doubled_found"].astype(bool)]
+    off = found[found["centre_error_px"] > within_px]
+    other = int((off["other_copy_error_px"] <= within_px).sum())
+    return {"doubled_found": int(len(found)), "doubled_off": int(len(off)), "doubled_other_copy": other,
+            "doubled_between": int(len(off)) - other}
 
 
 def format_summary(summary: dict[str, float]) -> str:
@@ -287,4 +350,6 @@ def format_summary(summary: dict[str, float]) -> str:
         f"theta_bot {s['bot_median_rad']:.4f} rad, theta_con {s['con_median_rad']:.4f} rad",
         f"registration: centre error max {s['centre_error_max_px']:.2f} px, scale error max "
         f"{s['scale_error_max_pct']:.2f} %, mirror wrong in {s['mirror_wrong']}",
+        f"walls found twice in {s['doubled_found']} videos: centre more than 1 px off in {s['doubled_off']} "
+        f"({s['doubled_other_copy']} on the other copy, {s['doubled_between']} elsewhere)",
     ])
