@@ -257,6 +257,19 @@ def test_flag_glitches_removes_spikes_and_keeps_ramps_and_steps():
 
 
 
+@pytest.mark.parametrize("spike, flagged", [(0.0, []), (2.0, [20])])
+def test_flag_glitches_allows_for_the_frames_between_measured_ones(spike, flagged):
+    """The tip advancing 0.15 rad a frame, measured on frames 0-10, 15 and 20: frame 20 lies 0.75
+    rad from its neighbours' median (frame 15's), five frames of the ramp, and is no glitch; 2 rad
+    more, it is. (Counting measured frames only, it lay five typical steps off and was marked.)"""
+    frames = [*range(11), 15, 20]
+    rows = [dict(frame=f, ok=True, theta_tip=1.0 + 0.15 * f, theta_bot=1.0, theta_con=0.15 * f, reason="")
+            for f in frames]
+    rows[-1]["theta_tip"] += spike
+    flag_glitches(rows, 0.25)
+    assert [r["frame"] for r in rows if not r["ok"]] == flagged
+
+
 def test_flag_excursions_marks_a_run_whose_contact_start_goes_away_and_back():
     """Frames 15-22 of a 30-frame insertion read theta_bot 1.5 rad further along than the frames
     around them (the contact arc's base read off the wall frame after frame, past what the

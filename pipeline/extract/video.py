@@ -581,12 +581,14 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     few edges misread can move theta_bot by radians through the contact run's definition. Over
     a video's measured frames in order, a frame is marked when its ``theta_tip`` or
     ``theta_bot`` lies from the running median of ``2 * half_window + 1`` measured frames
-    centred on it (fewer at the ends) by more than ``max_rad``, and by more than ``2 *
-    half_window`` typical frame-to-frame steps (the median absolute step over the 11 frames
-    around it): on a steep ramp (a fast insertion) a spike pulls its neighbours' medians by up
-    to ``half_window`` steps. A running median leaves ramps and steps as they are and removes
-    spikes up to ``half_window`` frames long. Marked rows get ``ok`` False, NaN angles and the
-    reason.
+    centred on it (fewer at the ends) by more than ``max_rad``, and by more than the typical
+    change a frame (the median over the 10 steps between the 11 measured frames around it of each
+    step's size over the frames it spans) times ``2 * half_window`` plus the frames between it and
+    the median of its window's frame numbers: on a steep ramp (a fast insertion) a spike pulls its
+    neighbours' medians by up to ``half_window`` steps, and where frames between were not measured
+    the ramp itself moves the angle away from its neighbours' median by as many steps. A running
+    median leaves ramps and steps as they are and removes spikes up to ``half_window`` frames long.
+    Marked rows get ``ok`` False, NaN angles and the reason.
 
     Parameters
     ----------
@@ -609,12 +611,16 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
         return 0
     marked = np.zeros(len(ok), dtype=bool)
     why = [""] * len(ok)
+    frames = np.array([float(rows[i]["frame"]) for i in ok])
+    # frames between each one and the middle of its window (0 inside runs of measured frames)
+    apart = np.abs(frames - _window_medians(frames, half_window, 2 * half_window + 1, len(frames)))
+    spans = np.diff(frames)
     for key in ("theta_tip", "theta_bot"):
         x = np.array([float(rows[i][key]) for i in ok])
         med = _window_medians(x, half_window, 2 * half_window + 1, len(x))
-        typical = _window_medians(np.abs(np.diff(x)), 5, 10, len(x))  # the 10 steps among the 11 frames around
+        typical = _window_medians(np.abs(np.diff(x)) / spans, 5, 10, len(x))  # a frame, over the 11 frames around
         off = np.abs(x - med)
-        far = off > np.maximum(max_rad, 2 * half_window * typical)
+        far = off > np.maximum(max_rad, (2 * half_window + apart) * typical)
         for j in np.flatnonzero(far & ~marked):
             why[j] = f"glitch: {key} {x[j]:.3f} rad, {off[j]:.2f} rad from its neighbours' median"
         marked |= far
