@@ -270,6 +270,22 @@ def test_flag_glitches_allows_for_the_frames_between_measured_ones(spike, flagge
     assert [r["frame"] for r in rows if not r["ok"]] == flagged
 
 
+def test_flag_glitches_finds_spikes_in_every_other_frame():
+    """theta_bot on a contact run's plateau (from 1.48 rad, drifting 0.012 rad a frame) with the
+    run read back to the entry (0.25 rad) in frames 18, 21 and 23, as on an independent renderer:
+    six of the ten steps around frame 21 are a spike's, and counted as typical they hid all three;
+    the first frames, a ramp (no contact yet, theta_bot the tip's) measured 2-3 frames apart, stay."""
+    frames = [4, 7, *range(9, 30)]
+    tip = {f: 0.82 + 0.12 * (f - 4) for f in frames}
+    bot = {f: (tip[f] if f <= 10 else 1.48 - 0.012 * (f - 11)) for f in frames}  # contact from frame 11
+    for f in (18, 21, 23):
+        bot[f] = 0.25
+    rows = [dict(frame=f, ok=True, theta_tip=tip[f], theta_bot=bot[f], theta_con=tip[f] - bot[f], reason="")
+            for f in frames]
+    flag_glitches(rows, 0.25)
+    assert [r["frame"] for r in rows if not r["ok"]] == [18, 21, 23]
+
+
 def test_flag_excursions_marks_a_run_whose_contact_start_goes_away_and_back():
     """Frames 15-22 of a 30-frame insertion read theta_bot 1.5 rad further along than the frames
     around them (the contact arc's base read off the wall frame after frame, past what the

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
@@ -557,14 +558,20 @@ def array_width(rows: list[dict], array: ElectrodeArray, *, tolerance: float = 0
 
 def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.ndarray:
     """``out[j] = median(x[max(0, j - before) : j - before + width])`` for ``j < n_out``: a
-    running median whose windows are clipped to ``x`` at its ends (values in ``x``'s unit).
+    running median whose windows are clipped to ``x`` at its ends (values in ``x``'s unit; NaN
+    values are left out, a window of NaN only gives NaN).
     The windows inside ``x`` are taken in one call; only the clipped ones at the ends loop."""
-    out = np.empty(n_out)
+    out = np.full(n_out, np.nan)
+    median = np.nanmedian if np.isnan(x).any() else np.median
     first, last = before, min(n_out - 1, len(x) - width + before)  # the j whose window lies inside x
-    if last >= first:
-        out[first : last + 1] = np.median(sliding_window_view(x, width)[: last - first + 1], axis=1)
-    for j in (*range(min(first, n_out)), *range(max(last + 1, first), n_out)):
-        out[j] = np.median(x[max(0, j - before) : j - before + width])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows
+        if last >= first:
+            out[first : last + 1] = median(sliding_window_view(x, width)[: last - first + 1], axis=1)
+        for j in (*range(min(first, n_out)), *range(max(last + 1, first), n_out)):
+            window = x[max(0, j - before) : j - before + width]
+            if len(window):
+                out[j] = median(window)
     return out
 
 
@@ -583,7 +590,8 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     ``theta_bot`` lies from the running median of ``2 * half_window + 1`` measured frames
     centred on it (fewer at the ends) by more than ``max_rad``, and by more than the typical
     change a frame (the median over the 10 steps between the 11 measured frames around it of each
-    step's size over the frames it spans) times ``2 * half_window`` plus the frames between it and
+    step's size over the frames it spans, leaving out steps into and out of frames more than
+    ``max_rad`` from their median: spikes, even in every other frame, are no steps) times ``2 * half_window`` plus the frames between it and
     the median of its window's frame numbers: on a steep ramp (a fast insertion) a spike pulls its
     neighbours' medians by up to ``half_window`` steps, and where frames between were not measured
     the ramp itself moves the angle away from its neighbours' median by as many steps. A running
@@ -618,8 +626,13 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     for key in ("theta_tip", "theta_bot"):
         x = np.array([float(rows[i][key]) for i in ok])
         med = _window_medians(x, half_window, 2 * half_window + 1, len(x))
-        typical = _window_medians(np.abs(np.diff(x)) / spans, 5, 10, len(x))  # a frame, over the 11 frames around
         off = np.abs(x - med)
+        # a frame, over the 11 frames around, leaving out the steps into and out of frames far
+        # from the median: spikes, even in every other frame, are no steps
+        steps = np.abs(np.diff(x)) / spans
+        suspect = off > max_rad
+        steps[suspect[:-1] | suspect[1:]] = np.nan
+        typical = np.nan_to_num(_window_medians(steps, 5, 10, len(x)), nan=0.0)
         far = off > np.maximum(max_rad, (2 * half_window + apart) * typical)
         for j in np.flatnonzero(far & ~marked):
             why[j] = f"glitch: {key} {x[j]:.3f} rad, {off[j]:.2f} rad from its neighbours' median"
