@@ -209,7 +209,7 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
     gross = ok & ((tip > cfg.gross_tip_rad) | (con > cfg.gross_con_rad))
     reg_centre = np.array([registration.pose.centre_x_px, registration.pose.centre_y_px])
     truth_centre = np.array([pose["centre_x_px"], pose["centre_y_px"]])
-    parallax = np.asarray(registration.parallax_px, dtype=float) if registration.walls_doubled else np.zeros(2)
+    parallax = np.asarray(registration.parallax_px, dtype=float)  # (0, 0) for single walls
     score = VideoScore(
         **_video_fields(case, pose),
         frames=len(m), measured=int(ok.sum()), contact_frames=int(contact.sum()),

@@ -569,9 +569,7 @@ def _window_medians(x: np.ndarray, before: int, width: int, n_out: int) -> np.nd
         if last >= first:
             out[first : last + 1] = median(sliding_window_view(x, width)[: last - first + 1], axis=1)
         for j in (*range(min(first, n_out)), *range(max(last + 1, first), n_out)):
-            window = x[max(0, j - before) : j - before + width]
-            if len(window):
-                out[j] = median(window)
+            out[j] = median(x[max(0, j - before) : j - before + width])
     return out
 
 
@@ -589,13 +587,14 @@ def flag_glitches(rows: list[dict], max_rad: float, half_window: int = 2) -> int
     a video's measured frames in order, a frame is marked when its ``theta_tip`` or
     ``theta_bot`` lies from the running median of ``2 * half_window + 1`` measured frames
     centred on it (fewer at the ends) by more than ``max_rad``, and by more than the typical
-    change a frame (the median over the 10 steps between the 11 measured frames around it of each
-    step's size over the frames it spans, leaving out steps into and out of frames more than
-    ``max_rad`` from their median: spikes, even in every other frame, are no steps) times ``2 * half_window`` plus the frames between it and
-    the median of its window's frame numbers: on a steep ramp (a fast insertion) a spike pulls its
-    neighbours' medians by up to ``half_window`` steps, and where frames between were not measured
-    the ramp itself moves the angle away from its neighbours' median by as many steps. A running
-    median leaves ramps and steps as they are and removes spikes up to ``half_window`` frames long.
+    change a frame times ``2 * half_window`` plus the frames between it and the median of its
+    window's frame numbers. The typical change a frame is the median over the 10 steps between
+    the 11 measured frames around it of each step's size over the frames it spans, leaving out
+    steps into and out of frames more than ``max_rad`` from their median (spikes, even in every
+    other frame, are no steps). On a steep ramp (a fast insertion) a spike pulls its neighbours'
+    medians by up to ``half_window`` steps, and where frames between were not measured the ramp
+    itself moves the angle away from its neighbours' median by as many steps. A running median
+    leaves ramps and steps as they are and removes spikes up to ``half_window`` frames long.
     Marked rows get ``ok`` False, NaN angles and the reason.
 
     Parameters
