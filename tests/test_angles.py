@@ -1591,3 +1591,48 @@ def test_the_tip_checks_mean_is_cv2_blurs() -> None:
             a = max(j0[i] - 1, 0)
             expected = cv2.blur(views[i].fine[:, a : j1[i] + 2], (3, 3))[:, j0[i] - a : j1[i] - a + 1]
             assert np.array_equal(smooth[:, part], expected), i
+
+
+def _bands_to_the_tip(pitch_mm: float, band_mm: float, last: str) -> tuple[np.ndarray, int, float, float]:
+    """Coverage (0 fluid, 1 array; offsets x stations, 0.026 x 0.034 mm) of an array 0.6 mm wide
+    ending at station 150 with three bright interiors inside its shaded edges, ``pitch_mm``
+    apart (oval, as glinting bands blurred look): two metal bands ``band_mm`` long and, 0.1 mm
+    short of the tip, a third band (``last="band"``), or a bubble's interior 0.45 mm across in a
+    0.1 mm rim half a pitch past the second band (``"bubble"``)."""
+    step, offset, tip = 0.034, 0.026, 150
+    cover = np.zeros((51, 220))
+    cover[19:42, : tip + 1] = 1.0
+    n_band, n_pitch = int(round(band_mm / step)), int(round(pitch_mm / step))
+    end = tip - 2  # the last interior's far end: a cap of 0.1 mm beyond it
+    sx, sy = np.meshgrid(np.arange(220) * step, np.arange(51) * offset)
+    for k in (0.5, 1.5) if last == "bubble" else (0, 1, 2):  # glinting, blurred: an oval as long as the band
+        mid = (end - k * n_pitch - 0.5 * n_band) * step
+        cover[np.hypot((sx - mid) / (0.5 * band_mm), (sy - 30 * offset) / 0.25) < 1.0] = -0.2
+    if last == "bubble":
+        r = np.hypot(sx - (end * step - 0.225), sy - 30 * offset)
+        cover[(r >= 0.225) & (r <= 0.325)] = 1.0
+        cover[r < 0.225] = -0.2
+    return cover, tip, step, offset
+
+
+@pytest.mark.parametrize("pitch_mm, band_mm", [(0.8, 0.3), (1.0, 0.4), (1.3, 0.5)])
+def test_a_last_band_like_the_two_before_it_is_not_a_bubble(pitch_mm: float, band_mm: float) -> None:
+    """The array's last metal band with only a thin cap beyond it (0.1 mm, no thicker than a
+    bubble's rim) looks like a bubble's interior against the tip; it is of the size and at the
+    pitch of the two bands before it, as no bubble is, so the array's run goes on to the cap.
+    Before, the array was cut at that band (an independent renderer's bands glinting right at
+    the tip: theta_tip 0.15-0.26 rad short on 21 frames of one video). A bubble's interior as
+    large but off the bands' pitch still ends the array at its rim."""
+    from tympani.vision.angles.bubbles import bubble_end
+
+    cfg = MeasureConfig()
+    inside = np.zeros(51, dtype=bool)
+    inside[3:48] = True
+    seed = np.full(220, 30)
+    cover, tip, step, offset = _bands_to_the_tip(pitch_mm, band_mm, "band")
+    dark = cover.max(axis=0) >= cfg.dark_level
+    assert bubble_end(cover, dark, seed, inside, tip, step, offset, 0.6, cfg) == (tip, None)
+    cover, tip, step, offset = _bands_to_the_tip(pitch_mm, band_mm, "bubble")
+    dark = cover.max(axis=0) >= cfg.dark_level
+    end, stop = bubble_end(cover, dark, seed, inside, int(np.flatnonzero(dark)[-1]), step, offset, 0.6, cfg)
+    assert stop is not None and end < tip - int(round(0.45 / step)), (end, stop)

@@ -133,6 +133,36 @@ def _chain_start(k: int, far: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, 
         k, far = j, int(gap[j]) // 2
 
 
+def _repeats_bands(k: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, h: np.ndarray, compact: np.ndarray,
+                   size_tol: float, pitch_tol: float, reach: float) -> bool:
+    """Whether the bright interior ``k`` repeats the two before it on the same track: of their
+    size and at their pitch, with more than two rims' dark between them (the array's body), as
+    the array's metal bands are (a bubble is not; a chain of bubbles touching one another has
+    only their rims between them).
+
+    Parameters
+    ----------
+    k : int
+        A bubble-like interior (component).
+    x, w, y, h : ndarray of int
+        Bounding boxes (first station, stations, first offset, offsets) of all components.
+    compact : ndarray of bool
+        Which components could be a bubble's interior (a band enclosed by the array's edges is).
+    size_tol, pitch_tol : float
+        Largest relative difference (dimensionless) in length and width, and in pitch.
+    reach : float
+        Longest dark stretch (stations) between two interiors of a chain of bubbles.
+    """
+    prev = np.flatnonzero(compact & (x + w <= x[k]) & (y < y[k] + h[k]) & (y[k] < y + h))
+    if len(prev) < 2:
+        return False
+    j1, j2 = prev[np.argsort(x[prev])[-2:][::-1]]
+    like = all(abs(int(a[j]) - int(a[k])) <= max(2.0, size_tol * a[k]) for j in (j1, j2) for a in (w, h))
+    p1, p2 = x[k] - x[j1], x[j1] - x[j2]
+    apart = x[k] - (x[j1] + w[j1]) > reach and x[j1] - (x[j2] + w[j2]) > reach
+    return bool(like and apart and abs(p1 - p2) <= pitch_tol * max(p1, p2))
+
+
 # How far (times the array's diameter) the array's track may pass beside a bubble's interior and
 # still push it: an array riding a wall meets a bubble pushed off towards the channel's middle.
 _TRACK_MARGIN = 0.125
@@ -141,6 +171,10 @@ _TRACK_MARGIN = 0.125
 _FLUID_COVER = 0.25
 # How far (mm) before a bubble's near rim fluid is sought: past the rim's blurred border.
 _GAP_WINDOW_MM = 0.25
+# How alike (relative difference in length and width, and in pitch) a bright interior must be
+# to the two before it on the array's track to be one more of its metal bands.
+_BAND_SIZE_TOL = 0.25
+_BAND_PITCH_TOL = 0.2
 
 
 def _fluid_before_rim(lane: np.ndarray, dark: np.ndarray, step_mm: float, cfg: MeasureConfig) -> bool:
@@ -175,7 +209,9 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     before a bubble's is a bubble too (:func:`_chain_start`). A bubble lies on the array's path
     where its interior reaches to within an eighth of the array's diameter of the array's track
     (the median darkest offset just before it): an array riding a wall pushes a bubble towards
-    the channel's middle. The array ends before the first
+    the channel's middle. An interior of the size of the two before it on the track and at
+    their pitch is one more band (:func:`_repeats_bands`), however thin the cap beyond it: the
+    array's last band may lie right at its tip. The array ends before the first
     bubble on its path, less the rim's thickness (that of the rim beyond the interior): at the
     last dark station before it.
 
@@ -227,7 +263,11 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         if (wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm
                 and not _fluid_before_rim(cover[rows, : x[k]], path[: x[k]], step_mm, cfg)):
             continue  # as narrow as a band, with array before and beyond it
-        k, far = _chain_start(k, far, x, w, y, h, compact, cfg.bubble_chain * cfg.bubble_rim_mm / step_mm)
+        chain = cfg.bubble_chain * cfg.bubble_rim_mm / step_mm
+        if wid_mm[k] < cfg.bubble_wider * diameter_mm and _repeats_bands(k, x, w, y, h, compact, _BAND_SIZE_TOL,
+                                                                         _BAND_PITCH_TOL, chain):
+            continue  # a band like the two before it, however thin the cap beyond
+        k, far = _chain_start(k, far, x, w, y, h, compact, chain)
         # the rim before it, and any array it touches: the longest dark run that ends where the
         # interior begins, over the interior's rows
         inner = labels[y[k] : y[k] + h[k]] == k + 1
