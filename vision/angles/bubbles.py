@@ -169,6 +169,9 @@ _TRACK_MARGIN = 0.125
 # Coverage (0 fluid, 1 array) within which a station shows plain fluid: neither the array's
 # body nor a metal band (brighter than the fluid: negative coverage).
 _FLUID_COVER = 0.25
+# Farthest (coverage) the fluid's own level beside the array may lie from the survey's fluid
+# level (uneven light, a soft shadow) for plain fluid to be told by it.
+_FLUID_SHIFT = 0.5
 # How far (mm) before a bubble's near rim fluid is sought: past the rim's blurred border.
 _GAP_WINDOW_MM = 0.25
 # How alike (relative difference in length and width, and in pitch) a bright interior must be
@@ -177,11 +180,14 @@ _BAND_SIZE_TOL = 0.25
 _BAND_PITCH_TOL = 0.2
 
 
-def _fluid_before_rim(lane: np.ndarray, dark: np.ndarray, step_mm: float, cfg: MeasureConfig) -> bool:
+def _fluid_before_rim(lane: np.ndarray, dark: np.ndarray, base: np.ndarray, step_mm: float,
+                      cfg: MeasureConfig) -> bool:
     """Whether plain fluid lies on the array's path (``lane``, its offsets' coverage up to a
     bubble-like interior, and ``dark``, where it is dark) before a dark stretch no thicker than
     two rims that ends at the interior, over at least ``cfg.bubble_gap_mm``: a bubble's near rim
-    with fluid before it. A metal band has the array's body before it, or another band
+    with fluid before it. Plain fluid is coverage within ``_FLUID_COVER`` of the fluid's own at
+    that station (``base``, the channel's lighter offsets: lit unevenly, the fluid need not be
+    at the survey's level). A metal band has the array's body before it, or another band
     (brighter than the fluid) and a short body."""
     if len(dark) == 0:
         return False
@@ -189,7 +195,8 @@ def _fluid_before_rim(lane: np.ndarray, dark: np.ndarray, step_mm: float, cfg: M
     if rim * step_mm > 2.0 * cfg.bubble_rim_mm:
         return False
     before = lane[:, : len(dark) - rim][:, -int(np.ceil(_GAP_WINDOW_MM / step_mm)):]
-    fluid = np.abs(before).max(axis=0) < _FLUID_COVER
+    base = base[: len(dark) - rim][-before.shape[1]:]
+    fluid = (np.abs(before - base).max(axis=0) < _FLUID_COVER) & (np.abs(base) < _FLUID_SHIFT)
     return bool(fluid.sum() >= max(2, int(np.ceil(cfg.bubble_gap_mm / step_mm))))
 
 
@@ -249,6 +256,9 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     wid_mm = h * offset_mm
     compact = _compact(x, y, w, h, area, m, n, step_mm, offset_mm, cfg)
     margin = _TRACK_MARGIN * diameter_mm / offset_mm  # rows
+    # the fluid's coverage at each station, beside the array: darker than the survey's level
+    # (a shadow, uneven light), never brighter (brighter than the fluid is a metal band's sign)
+    base = np.maximum(np.quantile(cover[inside], 0.25, axis=0), 0.0)
     for k in np.flatnonzero(compact)[np.argsort(x[compact])].tolist():
         before = np.flatnonzero(dark[: x[k]])
         if len(before) == 0 or x[k] > end + 1 + int(np.ceil(cfg.max_gap_mm / step_mm)):
@@ -261,7 +271,7 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
         far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
         if (wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm
-                and not _fluid_before_rim(cover[rows, : x[k]], path[: x[k]], step_mm, cfg)):
+                and not _fluid_before_rim(cover[rows, : x[k]], path[: x[k]], base[: x[k]], step_mm, cfg)):
             continue  # as narrow as a band, with array before and beyond it
         chain = cfg.bubble_chain * cfg.bubble_rim_mm / step_mm
         if wid_mm[k] < cfg.bubble_wider * diameter_mm and _repeats_bands(k, x, w, y, h, compact, _BAND_SIZE_TOL,
