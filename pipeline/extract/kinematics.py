@@ -6,7 +6,8 @@ starts and after it stops: ``depth(t) = clip(d0 + v t, lo, hi)``. A frame far fr
 was misread (a bubble ahead of the tip taken for more array, a tip lost in a shadow), and so is a
 *run* of such frames, which a spike filter keeps when the misreading lasts. :func:`fit_insertion`
 fits the line robustly (a consensus line through pairs of frames, then a Cauchy-loss fit of the
-clipped line); :func:`flag_kinematics` marks the frames off it.
+clipped line); :func:`flag_kinematics` marks the frames off it, and all of them where those left
+on it wander about it in runs (a misreading that lasts and changes bends the line towards it).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import median_filter
 from scipy.optimize import least_squares
 from scipy.stats import theilslopes
 
@@ -50,6 +52,17 @@ class KinematicsConfig:
     min_after_stop : int
         Fewest frames with a depth after the insertion stops for their fall to be judged: where
         it falls by more than the tolerance, the measured ones among them are marked.
+    wander_mm : float
+        Largest range (mm) of the measured frames' running median distance from the line (over
+        ``wander_frames`` consecutive measured frames), and at least the tolerance: right frames
+        scatter about the line by their noise, a hundredth to a tenth of a millimetre; frames
+        misread alike for a while (a chain of bubbles carried ahead of the tip taken for array)
+        pull the line towards them and leave the rest off it by turns, each within the
+        tolerance. Over it, every measured frame left is marked: which of them are right cannot
+        be told.
+    wander_frames : int
+        Window (measured frames) of that running median, and the fewest measured frames the
+        wander is judged on.
     """
 
     tol_mm: float = 0.5
@@ -59,6 +72,8 @@ class KinematicsConfig:
     pairs: int = 400
     near: float = 0.5
     min_after_stop: int = 4
+    wander_mm: float = 0.6
+    wander_frames: int = 5
 
 
 @dataclass(frozen=True)
@@ -288,7 +303,33 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
             runs.append(dict(first=first, last=last, frames=len(after), off_mm=round(-fall, 3)))
             note = "; ".join(filter(None, [note, f"{len(after)} frame(s) marked not ok after the insertion stops: "
                                                  f"their depth falls by {fall:.2f} mm (frames {first}-{last})"]))
+        kept = np.array([j for j in range(len(ok)) if rows[ok[j]]["ok"]], dtype=np.intp)
+        wander = _wander(r[kept], max(cfg.wander_mm, fit.tol_mm), cfg.wander_frames)
+        if wander is not None:  # the frames left on the line are misread alike by turns: all are in doubt
+            for a, b in _runs(kept):
+                seg = r[a:b + 1]
+                runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
+                                 off_mm=round(float(seg[np.argmax(np.abs(seg))]), 3)))
+                for j in range(a, b + 1):
+                    mark_not_ok(rows[ok[j]], "kinematics: " + wander)
+            runs.sort(key=lambda u: u["first"])
+            note = "; ".join(filter(None, [note, f"{len(kept)} frame(s) marked not ok: {wander}"]))
     return runs, note
+
+
+def _wander(r: np.ndarray, limit_mm: float, frames: int) -> str | None:
+    """Why the measured frames on the insertion line (``r``, their signed distances from it in
+    mm, in frame order) cannot be trusted: the running median of their distances over
+    ``frames`` frames ranges over more than ``limit_mm`` (mm); None where it does not, or with
+    fewer frames than that."""
+    if len(r) < frames:
+        return None
+    smooth = median_filter(r, size=frames, mode="nearest")
+    if np.ptp(smooth) <= limit_mm:
+        return None
+    return (f"the measured depths wander {np.ptp(smooth):.2f} mm about the constant-speed insertion "
+            f"({smooth.min():+.2f} to {smooth.max():+.2f} mm over runs of frames): a misreading that lasts, "
+            "and which frames are right cannot be told")
 
 
 def _fall_after_stop(fit: InsertionFit, time_s: np.ndarray, depth_mm: np.ndarray, cfg: KinematicsConfig) -> float:
