@@ -231,7 +231,8 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
 
     The insertion is fitted (:func:`fit_insertion`) to every row with a finite ``depth_mm``,
     measured or not (a frame refused for an unclear contact start still has its tip and depth),
-    and only measured rows are marked. With fewer than ``cfg.min_frames`` such rows, too few for
+    and only measured rows are marked. Where the measured rows left on the line wander about it
+    in runs (:attr:`KinematicsConfig.wander_mm`), all of them are marked. With fewer than ``cfg.min_frames`` such rows, too few for
     a line, a measured row is marked when another's depth contradicts it
     (:func:`order_conflicts`).
 
