@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.ndimage import median_filter
@@ -199,6 +200,21 @@ def _runs(index: np.ndarray) -> list[tuple[int, int]]:
     return [(int(index[a]), int(index[b])) for a, b in zip(starts, ends)]
 
 
+def _mark_runs(rows: list[dict], ok: list[int], index: np.ndarray, r: np.ndarray,
+               reason: Callable[[int], str]) -> list[dict]:
+    """Mark the measured rows ``ok[j]`` for ``j`` in ``index`` (sorted) not ok, in place, each
+    with ``reason(j)``; one dict per run of consecutive ``j``: its ``first`` and ``last`` frame,
+    ``frames`` and ``off_mm``, the largest of its signed distances ``r`` (mm) from the line."""
+    runs = []
+    for a, b in _runs(index):
+        seg = r[a:b + 1]
+        runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
+                         off_mm=round(float(seg[np.argmax(np.abs(seg))]), 3)))
+        for j in range(a, b + 1):
+            mark_not_ok(rows[ok[j]], reason(j))
+    return runs
+
+
 def order_conflicts(time_s: np.ndarray, depth_mm: np.ndarray, tol_mm: float) -> np.ndarray:
     """Index, for each frame, of a frame whose depth contradicts it (-1 for none): one later and
     more than ``tol_mm`` (mm) shallower, or earlier and more than ``tol_mm`` deeper; the
@@ -232,9 +248,9 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
     The insertion is fitted (:func:`fit_insertion`) to every row with a finite ``depth_mm``,
     measured or not (a frame refused for an unclear contact start still has its tip and depth),
     and only measured rows are marked. Where the measured rows left on the line wander about it
-    in runs (:attr:`KinematicsConfig.wander_mm`), all of them are marked. With fewer than ``cfg.min_frames`` such rows, too few for
-    a line, a measured row is marked when another's depth contradicts it
-    (:func:`order_conflicts`).
+    in runs (:attr:`KinematicsConfig.wander_mm`), all of them are marked. With fewer than
+    ``cfg.min_frames`` such rows, too few for a line, a measured row is marked when another's
+    depth contradicts it (:func:`order_conflicts`).
 
     Parameters
     ----------
@@ -276,16 +292,9 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
     else:
         off = np.flatnonzero(np.abs(r) > fit.tol_mm)
         why = ""
-    runs = []
-    for a, b in _runs(off):
-        seg = r[a:b + 1]
-        worst = float(seg[np.argmax(np.abs(seg))])
-        runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
-                         off_mm=round(worst, 3)))
-        for j in range(a, b + 1):
-            mark_not_ok(rows[ok[j]], "kinematics: " + why if why else
-                        f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed insertion "
-                        f"({fit.speed_mm_s:.3g} mm/s)")
+    runs = _mark_runs(rows, ok, off, r, lambda j: "kinematics: " + why if why else
+                      f"kinematics: depth {d[j]:.2f} mm is {r[j]:+.2f} mm off the constant-speed insertion "
+                      f"({fit.speed_mm_s:.3g} mm/s)")
     note = ""
     if why:
         note = f"{len(off)} frame(s) marked not ok: {why}"
@@ -307,13 +316,8 @@ def flag_kinematics(rows: list[dict], cfg: KinematicsConfig = KinematicsConfig()
         kept = np.array([j for j in range(len(ok)) if rows[ok[j]]["ok"]], dtype=np.intp)
         wander = _wander(r[kept], max(cfg.wander_mm, fit.tol_mm), cfg.wander_frames)
         if wander is not None:  # the frames left on the line are misread alike by turns: all are in doubt
-            for a, b in _runs(kept):
-                seg = r[a:b + 1]
-                runs.append(dict(first=int(rows[ok[a]]["frame"]), last=int(rows[ok[b]]["frame"]), frames=b - a + 1,
-                                 off_mm=round(float(seg[np.argmax(np.abs(seg))]), 3)))
-                for j in range(a, b + 1):
-                    mark_not_ok(rows[ok[j]], "kinematics: " + wander)
-            runs.sort(key=lambda u: u["first"])
+            runs = sorted(runs + _mark_runs(rows, ok, kept, r, lambda j: "kinematics: " + wander),
+                          key=lambda u: u["first"])
             note = "; ".join(filter(None, [note, f"{len(kept)} frame(s) marked not ok: {wander}"]))
     return runs, note
 

@@ -256,6 +256,7 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     wid_mm = h * offset_mm
     compact = _compact(x, y, w, h, area, m, n, step_mm, offset_mm, cfg)
     margin = _TRACK_MARGIN * diameter_mm / offset_mm  # rows
+    chain = cfg.bubble_chain * cfg.bubble_rim_mm / step_mm  # stations: two rims between bubbles of a chain
     # the fluid's coverage at each station, beside the array: darker than the survey's level
     # (a shadow, uneven light), never brighter (brighter than the fluid is a metal band's sign)
     base = np.maximum(np.quantile(cover[inside], 0.25, axis=0), 0.0)
@@ -270,12 +271,11 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
         rows = slice(max(int(round(track)) - reach, 0), int(round(track)) + reach + 1)
         path = cover[rows].max(axis=0) >= cfg.dark_level  # dark on the array's path
         far = _dark_beyond(path[x[k] + w[k]:], max(2, int(np.ceil(0.5 * cfg.bubble_rim_mm / step_mm))))
-        if (wid_mm[k] < cfg.bubble_wider * diameter_mm and far * step_mm > cfg.bubble_rim_mm
+        narrow = wid_mm[k] < cfg.bubble_wider * diameter_mm  # no wider than a band
+        if (narrow and far * step_mm > cfg.bubble_rim_mm
                 and not _fluid_before_rim(cover[rows, : x[k]], path[: x[k]], base[: x[k]], step_mm, cfg)):
             continue  # as narrow as a band, with array before and beyond it
-        chain = cfg.bubble_chain * cfg.bubble_rim_mm / step_mm
-        if wid_mm[k] < cfg.bubble_wider * diameter_mm and _repeats_bands(k, x, w, y, h, compact, _BAND_SIZE_TOL,
-                                                                         _BAND_PITCH_TOL, chain):
+        if narrow and _repeats_bands(k, x, w, y, h, compact, _BAND_SIZE_TOL, _BAND_PITCH_TOL, chain):
             continue  # a band like the two before it, however thin the cap beyond
         k, far = _chain_start(k, far, x, w, y, h, compact, chain)
         # the rim before it, and any array it touches: the longest dark run that ends where the
