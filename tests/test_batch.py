@@ -24,8 +24,9 @@ from tympani.pipeline.extract import batch
 from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
-from tympani.pipeline.extract.video import (ANGLE_COLUMNS, _window_medians, contact_excursions, extract_video,
-                                           flag_excursions, flag_few, flag_glitches, flag_lone, flag_sparse)
+from tympani.pipeline.extract.video import (ANGLE_COLUMNS, _window_medians, contact_excursions, contact_losses,
+                                           extract_video, flag_contact_loss, flag_excursions, flag_few, flag_glitches,
+                                           flag_lone, flag_sparse)
 from tympani.pipeline.io import atomic_open, atomic_write_csv, atomic_write_json, atomic_write_text, content_hash, provenance
 from tympani.vision.errors import InputError
 from tympani.vision.geometry import DEFAULT_ARRAY, DEFAULT_PHANTOM, point_angle
@@ -353,6 +354,80 @@ def test_extract_video_marks_a_contact_start_that_goes_away_and_back(tmp_path):
 def test_contact_excursions_cases(bot, runs):
     """Which stretches between steps of over 0.5 rad are excursions."""
     assert contact_excursions(np.array(bot), 0.5) == runs
+
+_TIP = 0.6 + 0.12 * np.arange(12)
+
+
+@pytest.mark.parametrize(
+    "bot, marked",
+    [
+        (_TIP - np.r_[0, 0, 0.5, 0.7, 0.9, 1.0, 1.2, 1.3, 1.5, 1.6, 1.8, 2.0], []),  # contact spreading
+        (_TIP - np.r_[[0.0] * 5, [0.6] * 7], []),  # a contact run forming
+        (_TIP - np.r_[[0.0] * 3, [0.4] * 4, [0.0] * 5], []),  # a short one (0.4 rad) breaking
+        (_TIP - np.r_[[0.0] * 3, [1.2] * 4, [0.0] * 5], [(7, 6), (8, 6), (9, 6), (10, 6), (11, 6)]),  # lost
+        (_TIP - np.r_[[1.2] * 4, [0.1] * 3, [1.3] * 5], [(4, 3), (5, 3), (6, 3)]),  # lost, then read again
+        (_TIP - np.r_[[1.2] * 4, [0.8] * 8], []),  # 0.4 rad shorter: within the limit
+        (np.r_[[0.5] * 6, 0.5 + 0.12 * np.arange(1, 7)], []),  # the arc's start sliding with the tip
+    ],
+)
+def test_contact_losses_cases(bot, marked):
+    """Which measured frames have lost over 0.5 rad of the contact arc of the frames before
+    them, and the frame each is compared with (the last one not marked)."""
+    against = contact_losses(_TIP, bot, 0.5)
+    assert [(k, int(against[k])) for k in np.flatnonzero(against >= 0)] == marked
+
+
+def test_flag_contact_loss_marks_a_contact_arc_read_off_the_wall_for_good():
+    """The measured angles of an independent renderer's video (walls that show twice, not found;
+    the registration 4.7 px off): frames 3-16 read the contact along the outer wall, frames
+    21-29 lose it all (0 rad against 1.33) while the truth's arc went on growing, and neither
+    the glitch filter nor the excursion check (it never comes back) marked them. Marked, each
+    naming the frame it contradicts; the frames before stay, as does every frame with the
+    check off."""
+    frames = [*range(17), *range(21, 30)]
+    tip = [0.591, 0.668, 0.758, 0.848, 0.941, 1.034, 1.126, 1.222, 1.315, 1.410, 1.511, 1.617, 1.726, 1.835, 1.953,
+           2.069, 2.190, 2.814, 2.948, 3.077, 3.213, 3.361, 3.502, 3.644, 3.792, 3.944]
+    bot = [0.591, 0.668, 0.758, 0.777, 0.789, 0.871, 0.855, 0.840, 0.783, 0.788, 0.843, 0.769, 0.827, 0.819, 0.800,
+           0.868, 0.856, *tip[17:]]
+
+    def rows():
+        return [dict(frame=f, ok=True, theta_tip=t, theta_bot=b, theta_con=t - b, reason="")
+                for f, t, b in zip(frames, tip, bot)]
+
+    r = rows()
+    assert flag_contact_loss(r, 0.5) == 9
+    assert [x["frame"] for x in r if not x["ok"]] == list(range(21, 30))
+    assert r[17]["reason"] == ("contact lost: theta_con 0.00 rad against 1.33 rad in frame 16 (a contact arc going "
+                               "in does not shorten by over 0.5 rad)")
+    assert math.isnan(r[20]["theta_bot"]) and all(x["ok"] for x in r[:17])
+    r = rows()
+    assert flag_contact_loss(r, 0.0) == 0 and all(x["ok"] for x in r)
+
+
+def _contact_lost(gray, registration, phantom, array, cfg):
+    """The fake measurement, with a contact arc of 1.2 rad read as none from frame 12 on: the
+    tip and the depth advance steadily throughout."""
+    i = round((float(gray[8:, :].mean()) - 30.0) / 10.0)
+    tip = 2.5 + 0.1 * i
+    bot = tip - (1.2 if i < 12 else 0.0)
+    m = fakes.fake_measure_frame(gray, registration, phantom, array, cfg)
+    return dataclasses.replace(m, theta_tip=tip, theta_bot=bot, theta_con=tip - bot, extras={"depth_mm": 2.0 + 0.5 * i})
+
+
+def test_extract_video_marks_a_contact_arc_that_is_lost(tmp_path):
+    """Through the extraction: frames 12-19 of 20 are marked with the reason and a warning says
+    how many; with the check off (excursion_rad 0) every frame stays measured."""
+    path = fakes.write_video(tmp_path / "c.mp4", n=20)
+    steps = dataclasses.replace(STEPS, measure_frame=_contact_lost)
+    table, _ = extract_video(path, fakes.fake_config(), steps=steps)
+    assert table.loc[~table["ok"], "frame"].tolist() == list(range(12, 20))
+    assert table.loc[table["frame"] == 15, "reason"].item().startswith("contact lost: theta_con 0.00 rad against "
+                                                                       "1.20 rad in frame 11")
+    assert any(w.startswith("8 frame(s) marked not ok: their contact arc is over 0.5 rad shorter")
+               for w in table.attrs["warnings"])
+    table, _ = extract_video(path, fakes.fake_config(excursion_rad=0.0), steps=steps)
+    assert table["ok"].all()
+
 
 def test_flag_lone_marks_frames_with_no_measured_neighbour_within_reach():
     """Frames 6 and 10 have no other measured frame within 3 frames (1, 6, 10 and 14 lie 4-5

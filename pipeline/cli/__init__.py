@@ -91,7 +91,8 @@ def _add_video_check_options(group: Any) -> None:
                             "from the video's constant-speed insertion (0: never; default 0.5)")
     group.add_argument("--excursion-rad", type=nonneg_float, default=0.5, metavar="RAD",
                        help="mark a run of frames not ok whose theta_bot steps this far (rad) away from the frames "
-                            "around it and back (0: never; default 0.5)")
+                            "around it and back, and the frames whose contact arc is this much shorter than the "
+                            "frames' before them (0: never; default 0.5)")
     group.add_argument("--lone-reach", type=nonneg_int, default=3, metavar="N",
                        help="mark a measured frame not ok when no other frame within N frames either side is "
                             "measured: nothing checks it (0: never; default 3)")

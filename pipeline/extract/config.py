@@ -111,7 +111,9 @@ class ExtractConfig:
     excursion_rad : float
         A run of measured frames whose theta_bot steps this far (rad) or more away from the
         frames around it and back, fewer frames than those around it, is marked not ok
-        (:func:`~tympani.pipeline.extract.video.flag_excursions`); 0 keeps every frame.
+        (:func:`~tympani.pipeline.extract.video.flag_excursions`), and so is a measured frame whose
+        contact angle is more than this shorter than that of the frames before it
+        (:func:`~tympani.pipeline.extract.video.flag_contact_loss`); 0 keeps every frame.
     lone_reach : int
         A measured frame with no other frame measured within this many frames either side is
         marked not ok: nothing checks it (:func:`~tympani.pipeline.extract.video.flag_lone`; not

@@ -7,7 +7,8 @@ check noticed it (:func:`remeasure_after_moves`), marks glitches (:func:`flag_gl
 frames off the constant-speed insertion (:func:`tympani.pipeline.extract.kinematics.flag_kinematics`),
 measures again on the other copy of walls that show twice where the array touches that one
 (:func:`remeasure_on_other_copy`), marks runs of frames whose contact start goes away and comes
-back (:func:`flag_excursions`), marks the frames of a video mostly unread (:func:`flag_sparse`),
+back (:func:`flag_excursions`) and the frames that lost the contact arc of the frames before
+them (:func:`flag_contact_loss`), marks the frames of a video mostly unread (:func:`flag_sparse`),
 the measured frames with no other measured frame near (:func:`flag_lone`) and those of a video
 measured on only a handful of frames (:func:`flag_few`), and pools how wide the array looks
 (:func:`array_width`).
@@ -54,6 +55,8 @@ __all__ = [
     "flag_glitches",
     "contact_excursions",
     "flag_excursions",
+    "flag_contact_loss",
+    "contact_losses",
     "flag_sparse",
     "flag_few",
     "flag_lone",
@@ -146,6 +149,10 @@ def extract_video(
     if excursions:
         notes.append(f"{excursions} frame(s) marked not ok: their contact start went over {cfg.excursion_rad:g} rad "
                      "away from the frames around them and came back")
+    lost = flag_contact_loss(rows, cfg.excursion_rad)
+    if lost:
+        notes.append(f"{lost} frame(s) marked not ok: their contact arc is over {cfg.excursion_rad:g} rad shorter "
+                     "than the frames' before them")
     note = flag_sparse(rows, cfg.sparse_share)
     if note:
         notes.append(note)
@@ -719,6 +726,74 @@ def flag_excursions(rows: list[dict], max_rad: float) -> int:
         for j in range(a, b + 1):
             mark_not_ok(rows[ok[j]], why)
     return sum(b - a + 1 for a, b in runs)
+
+
+def contact_losses(theta_tip: np.ndarray, theta_bot: np.ndarray, max_rad: float) -> np.ndarray:
+    """Which of a video's measured frames have lost more than ``max_rad`` of the contact arc the
+    frames before them had.
+
+    Going in, the array's contact with the outer wall spreads both ways, its start going back
+    as its tip goes on: the contact angle ``theta_tip - theta_bot`` grows, or holds. Each frame
+    is compared with the last frame before it that is not marked: where the contact start has
+    moved on by more than the tip has (the tip's advance counted from 0) plus ``max_rad``, the
+    frame is marked. A frame without contact (``theta_bot == theta_tip``) marks nothing after
+    it, so a contact run forming is never marked, nor one shorter than ``max_rad`` breaking.
+
+    Parameters
+    ----------
+    theta_tip, theta_bot : ndarray, shape (n,)
+        Tip and contact start angles (rad) of the measured frames, in frame order.
+    max_rad : float
+        Largest loss (rad) of the contact angle.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        For each marked frame the index of the frame it was compared with; -1 for the others.
+    """
+    tip, bot = np.asarray(theta_tip, dtype=float), np.asarray(theta_bot, dtype=float)
+    against = np.full(len(tip), -1, dtype=np.intp)
+    ref = 0
+    for k in range(1, len(tip)):
+        if bot[k] - bot[ref] - max(tip[k] - tip[ref], 0.0) > max_rad:
+            against[k] = ref
+        else:
+            ref = k
+    return against
+
+
+def flag_contact_loss(rows: list[dict], max_rad: float) -> int:
+    """Mark the measured frames whose contact arc is more than ``max_rad`` shorter than the
+    frames before them had (:func:`contact_losses`) not ok, in place: the array went in, and
+    its contact along the outer wall was misread (its outer edge lost against a wall that shows
+    twice, a registration a few pixels off), in a run that lasts, which neither the glitch
+    filter nor the excursion check (the contact start coming back) marks.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``frame``, ``ok``, angles in rad, ``reason``); changed
+        in place.
+    max_rad : float
+        Largest loss (rad) of the contact angle; 0 or less does nothing.
+
+    Returns
+    -------
+    int
+        Frames marked.
+    """
+    ok = _measured_in_order(rows)
+    if max_rad <= 0 or len(ok) < 2:
+        return 0
+    tip = np.array([float(rows[i]["theta_tip"]) for i in ok])
+    bot = np.array([float(rows[i]["theta_bot"]) for i in ok])
+    against = contact_losses(tip, bot, max_rad)
+    marked = np.flatnonzero(against >= 0)
+    for k, ref in zip(marked.tolist(), against[marked].tolist()):
+        mark_not_ok(rows[ok[k]], f"contact lost: theta_con {tip[k] - bot[k]:.2f} rad against {tip[ref] - bot[ref]:.2f} "
+                                 f"rad in frame {rows[ok[ref]]['frame']} (a contact arc going in does not shorten "
+                                 f"by over {max_rad:g} rad)")
+    return len(marked)
 
 
 # Least number of frames from a video's first measured frame to its last for :func:`flag_sparse`
