@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from types import SimpleNamespace
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -33,7 +34,11 @@ from tympani.vision.angles import (
     measure_frames_batch,
     prepare_measurement,
 )
+from tympani.vision.angles.centreline import CentreLine
+from tympani.vision.angles.edges import Edges
+from tympani.vision.angles.results import results_batch
 from tympani.vision.geometry import (
+    DEFAULT_ARRAY,
     DEFAULT_PHANTOM,
     CameraPose,
     ElectrodeArray,
@@ -1641,3 +1646,46 @@ def test_a_last_band_like_the_two_before_it_is_not_a_bubble(pitch_mm: float, ban
     dark = cover.max(axis=0) >= cfg.dark_level
     end, stop = bubble_end(cover, dark, seed, inside, int(np.flatnonzero(dark)[-1]), step, offset, 0.6, cfg)
     assert stop is not None and end < tip - int(round(0.45 / step)), (end, stop)
+
+
+# --------------------------------------------------------------------------- the tip's last stretch
+
+
+def _riding_the_wall(gaps_at: Callable[[np.ndarray], np.ndarray], cfg: MeasureConfig) -> FrameMeasurement:
+    """Stage 4 of a centre line drawn here: the array riding the outer wall from the entry to a
+    tip at 3.2 rad, every station's edges measured, its gap to the wall (mm) ``gaps_at(s)`` at
+    ``s`` mm from the tip."""
+    pose = CameraPose(320.0, 240.0, 0.4, 30.0, False)
+    plan = prepare_measurement(pose, (H, W), cfg=cfg)
+    tip = int(np.searchsorted(plan.station_theta, 3.2))
+    j = np.arange(tip + 1)
+    s = plan.p_mm[tip] - plan.p_mm[j]
+    r = np.full(len(j), 0.5 * DEFAULT_ARRAY.tip_diameter_mm)
+    gap = gaps_at(s)
+    v = plan.half_mm[j] - r - gap  # the centre line's offset from the backbone (mm, outwards)
+    line = plan.point_mm[j] + v[:, None] * plan.normal[j]
+    nan = np.full(len(j), np.nan)
+    yes = np.ones(len(j), dtype=bool)
+    edges = Edges(0, len(j), np.zeros((3, len(j)), np.uint8), np.full(len(j), 200.0), np.full(len(j), 100.0),
+                  np.zeros(len(j), np.intp), v - r, v + r, yes, yes, nan, nan, 0.5, 1.0)
+    line_b = CentreLine(float(tip), line[-1], line, gap, r, yes, 1.0, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):  # as the measurement runs it
+        return results_batch(plan, [(edges, line_b, {})])[0]
+
+
+def test_an_array_touching_the_wall_just_behind_its_tip_is_refused() -> None:
+    """An array against the outer wall along its body whose gaps rise to 0.15 mm over its last
+    0.4 mm (its rounded end, where blur or a highlight moves the edges most; on an independent
+    renderer the tip of an array drawn with a darker rim and a lighter middle read so, and the
+    contact, 1.3-2.0 rad of it, was missed on 7 frames): whether the tip touches decides a
+    contact of radians, and the frame is refused. A tip that leaves the wall over its last 1.5
+    mm, or one touching to its end, is measured; so is the first with the check off."""
+    cfg = MeasureConfig()
+    m = _riding_the_wall(lambda s: np.where(s < 0.4, 0.15 * (1.0 - s / 0.4), 0.0), cfg)
+    assert not m.ok and m.reason == "contact unclear: touching the wall 0.5 mm behind the tip, not at it"
+    leaving = _riding_the_wall(lambda s: np.where(s < 1.5, 0.3 * (1.0 - s / 1.5), 0.0), cfg)
+    assert leaving.ok and leaving.theta_con == 0.0
+    touching = _riding_the_wall(lambda s: np.zeros_like(s), cfg)
+    assert touching.ok and touching.theta_con > 2.5
+    off = _riding_the_wall(lambda s: np.where(s < 0.4, 0.15 * (1.0 - s / 0.4), 0.0), replace(cfg, contact_tip_mm=0.0))
+    assert off.ok and off.theta_con == 0.0

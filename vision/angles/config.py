@@ -47,7 +47,15 @@ class MeasureConfig:
         See ``gap_resolution_px``. Also the largest move (rad) of the contact start allowed
         were the array against the outer edge of a dark wider than itself near the tip (a
         shadow beside it), rather than against its inner edge; beyond it the frame is refused
-        ("contact unclear: the dark at the tip is ... wider than the array").
+        ("contact unclear: the dark at the tip is ... wider than the array"), and were the
+        array touching the wall over its last ``contact_tip_mm`` (see there).
+    contact_tip_mm : float
+        Length (mm) of the array's last stretch, from the tip, whose gaps are the least sure:
+        its rounded end, where blur, a highlight or a bubble move the edges most. Where the
+        contact run would start more than ``contact_swing_rad`` further back were that stretch
+        touching the wall (the array touches it just behind the tip, and not at the tip), the
+        frame is refused ("contact unclear: touching the wall ... behind the tip, not at it");
+        0 does not look.
     residual_resolution, max_gap_resolution_px : float
         The gaps are told apart no more finely than the registration fits the walls: the
         resolution is raised to ``residual_resolution`` times the registration's residual (px),
@@ -312,6 +320,7 @@ class MeasureConfig:
     contact_bias_mm: float = 0.1
     gap_resolution_px: float = 2.0
     contact_swing_rad: float = 0.6
+    contact_tip_mm: float = 0.5
     residual_resolution: float = 2.0
     max_gap_resolution_px: float = 3.0
     station_step_px: float = 1.0

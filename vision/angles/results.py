@@ -271,6 +271,12 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # side of that dark the array takes decides the contact
     excess = np.array([c.dark_excess_mm for _, c, _ in staged])
     flush = np.abs(start_angle(*contact_run(gaps - excess[cl.row], loose, cl, cfg)) - theta_bot)
+    # and with the array's last stretch, its rounded end, taken as touching: where the array
+    # touches the wall just behind its tip and not at it, whether the tip touches decides the
+    # contact, and there the edges are the least sure
+    end = (np.hypot(*(points - tip_mm[cl.row]).T) <= cfg.contact_tip_mm) & (cfg.contact_tip_mm > 0)
+    behind = start_angle(*contact_run(np.where(end, 0.0, gaps), loose, cl, cfg))
+    behind = np.abs(behind - theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
     v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
     measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
@@ -298,9 +304,9 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     rows = zip(staged, cl.split(points), cl.split(gaps), ol.split(outline), theta_tip.tolist(), theta_bot.tolist(),
                bot, depth.tolist(), entry.tolist(), np.where(entry, 0.0, swing).tolist(), crossed.tolist(),
                other_copy.tolist(), contact.tolist(), blind.tolist(), np.where(entry, 0.0, flush).tolist(),
-               excess.tolist())
+               excess.tolist(), np.where(entry, 0.0, behind).tolist())
     for (_, _, extras), cl_b, gaps_b, outline_b, t_tip, t_bot, bot_b, depth_b, in_entry, swing_b, crossed_b, other_b, \
-            contact_b, blind_b, flush_b, excess_b in rows:
+            contact_b, blind_b, flush_b, excess_b, behind_b in rows:
         extras["depth_mm"] = depth_b
         extras["other_copy_mm"] = other_b
         if crossed_b:
@@ -318,6 +324,10 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
             continue
         if flush_b > cfg.contact_swing_rad:
             results.append(failure(f"contact unclear: the dark at the tip is {excess_b:.2f} mm wider than the array",
+                                   **extras))
+            continue
+        if behind_b > cfg.contact_swing_rad:
+            results.append(failure(f"contact unclear: touching the wall {cfg.contact_tip_mm:g} mm behind the tip, not at it",
                                    **extras))
             continue
         results.append(FrameMeasurement(True, "", t_tip, t_bot, 0.0 if in_entry else t_tip - t_bot, cl_b[0], bot_b,
