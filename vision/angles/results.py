@@ -275,8 +275,7 @@ def results_batch(plan: MeasurePlan, staged: list[tuple[Edges, CentreLine, dict[
     # touches the wall just behind its tip and not at it, whether the tip touches decides the
     # contact, and there the edges are the least sure
     end = (np.hypot(*(points - tip_mm[cl.row]).T) <= cfg.contact_tip_mm) & (cfg.contact_tip_mm > 0)
-    behind = start_angle(*contact_run(np.where(end, 0.0, gaps), loose, cl, cfg))
-    behind = np.abs(behind - theta_bot)
+    behind = np.abs(start_angle(*contact_run(np.where(end, 0.0, gaps), loose, cl, cfg)) - theta_bot)
     # where no edges were seen around the contact start, its gaps are only smoothed across
     v_in, v_out = (np.concatenate([getattr(e, name) for e, _, _ in staged]) for name in ("v_in", "v_out"))
     measured = np.ones(len(cl.row), dtype=bool)  # the tip is located where no edges show too
