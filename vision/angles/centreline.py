@@ -436,12 +436,14 @@ def speck_cut(cover: np.ndarray, along: np.ndarray, level: float, start: int, ti
 
 
 def _with_falls(edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, rows: np.ndarray,
-                level: np.ndarray) -> np.ndarray:
+                level: np.ndarray, bright: float) -> np.ndarray:
     """The frames (indices) where :func:`speck_cut` may find a speck: room for the array's end, a
     gap and more between the last station with measured edges (``last``) and the tip
     (fractional station ``tip_f``), and there a fall of the coverage along the track (the mean
     over the fractional offset indices ``rows``, shape (B, 3)) below ``level`` that rises again
-    before the tip. All frames' stretches at once, computed as :func:`speck_cut`'s caller does."""
+    before the tip, the gap between nowhere ``bright`` below zero (a metal band's brightness:
+    the commonest fall, the band behind the array's cap). All frames' stretches at once,
+    computed as :func:`speck_cut`'s caller does."""
     frames = np.flatnonzero(tip_f > last + 3.0)
     if not len(frames):
         return frames
@@ -463,8 +465,11 @@ def _with_falls(edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, rows: n
     after = np.append(above[1:], False)
     fall = np.where(above & ~after & (rg.local < np.minimum(end, rg.n[rg.row] - 1)), rg.local, np.iinfo(np.intp).max)
     first = np.minimum.reduceat(fall, rg.start)[rg.row]
-    rises = rg.count(above & (rg.local > first) & (rg.local <= end))
-    return frames[rises > 0]
+    rise = np.minimum.reduceat(np.where(above & (rg.local > first) & (rg.local <= end), rg.local, rg.n[rg.row]),
+                               rg.start)
+    gap = (rg.local > first) & (rg.local < rise[rg.row])
+    lit = np.minimum.reduceat(np.where(gap, along, np.inf), rg.start) < -bright
+    return frames[(rise < rg.n) & ~lit]
 
 
 def _before_specks(plan: MeasurePlan, edges: list[Edges], last: np.ndarray, tip_f: np.ndarray, tip_u: np.ndarray,
@@ -479,7 +484,7 @@ def _before_specks(plan: MeasurePlan, edges: list[Edges], last: np.ndarray, tip_
     track = (tip_u - float(u[0])) / du
     rows = np.clip(track[:, None] + np.array([-1.0, 0.0, 1.0]), 0, len(u) - 1.001)
     out = tip_f.copy()
-    for i in _with_falls(edges, last, tip_f, rows, level).tolist():
+    for i in _with_falls(edges, last, tip_f, rows, level, cfg.band_level).tolist():
         e, s0 = edges[i], int(last[i])
         a = slice(s0, int(tip_f[i]) + 2)
         cover = (e.fluid[None, a] - e.fine[:, a]) / e.contrast[None, a]

@@ -264,14 +264,18 @@ def _shelf_edges(cover: np.ndarray, cumulative: np.ndarray, seed: np.ndarray, lo
         core = cores[side]
         outer = np.where(np.isfinite(edge), edge, stop)
         shelf = _fill(cumulative, *((outer, core) if side == 0 else (core, outer)))
-        use = (shelf >= cfg.shelf_min) & (peak - shelf >= cfg.shelf_step) & (sign * (outer - core) >= shelf_px)
-        level = 0.5 * (peak + shelf)
-        found = np.where(use, _half_crossings(cover, seed, level)[side], np.nan)
-        # out to the dark's edge the coverage stays below that level (a highlight does not)
-        lo, hi = (outer, found - 0.5) if side == 0 else (found + 0.5, outer)
-        between = (j > np.nan_to_num(lo, nan=np.inf)[None, :]) & (j < np.nan_to_num(hi, nan=-np.inf)[None, :])
-        use &= np.isfinite(found) & ~(between & (cover >= level[None, :])).any(axis=0)  # NaN compares False
-        out.append(np.where(use, found, np.nan))
+        at = np.flatnonzero((shelf >= cfg.shelf_min) & (peak - shelf >= cfg.shelf_step)
+                            & (sign * (outer - core) >= shelf_px))
+        found = np.full(n, np.nan)
+        if len(at):  # the stations with a shelf only (few, as a rule)
+            sub, level = cover[:, at], 0.5 * (peak[at] + shelf[at])
+            core_edge = _half_crossings(sub, seed[at], level)[side]
+            # out to the dark's edge the coverage stays below that level (a highlight does not)
+            lo, hi = (outer[at], core_edge - 0.5) if side == 0 else (core_edge + 0.5, outer[at])
+            between = (j > np.nan_to_num(lo, nan=np.inf)[None, :]) & (j < np.nan_to_num(hi, nan=-np.inf)[None, :])
+            keep = np.isfinite(core_edge) & ~(between & (sub >= level[None, :])).any(axis=0)
+            found[at[keep]] = core_edge[keep]
+        out.append(found)
     return out[0], out[1]
 
 
