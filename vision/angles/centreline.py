@@ -37,6 +37,7 @@ _BESIDE = "the array's bands show beside the dark run, not on it (its shadow fol
 
 # Why a frame whose tip lies on dark fainter than the array is not measured (:func:`tip_darkness`).
 _FAINT = "the dark at the tip is fainter than the array (a shadow or a speck past the tip?)"
+_DARKER = "the dark at the tip is darker than the array (a dark bubble or speck against it?)"
 # Why a frame with something as bright as a band just past its tip is not measured (:func:`bright_past_tip`).
 _BAND_PAST = "a metal band's brightness just past the tip (the array's end not seen?)"
 
@@ -353,8 +354,8 @@ def bright_past_tip(views: list[TipView], step_mm: float, r_tip_mm: float, margi
 
 
 def _unlike_tips(plan: MeasurePlan, edges: list[Edges], tip_f: np.ndarray, tip_v: np.ndarray) -> list[str | None]:
-    """Why each frame's tip is not the array's end (its last stretch fainter than the array, or,
-    no bubble found, a band's brightness just past it), or None. ``tip_f`` is each tip's
+    """Why each frame's tip is not the array's end (its last stretch fainter than the array or far
+    darker than it, or, no bubble found, a band's brightness just past it), or None. ``tip_f`` is each tip's
     fractional station from its ``edges.lo`` and ``tip_v`` its offset (mm)."""
     cfg = plan.cfg
     views = [TipView(e.fine, e.fluid, e.contrast, plan.half_mm[e.lo : e.lo + e.fine.shape[1]], plan.u, f, v)
@@ -363,9 +364,13 @@ def _unlike_tips(plan: MeasurePlan, edges: list[Edges], tip_f: np.ndarray, tip_v
         return []
     margin = cfg.wall_margin_px / float(plan.pose.px_per_mm)
     dark = tip_darkness(views, plan.step_mm, plan.r_tip_mm, margin, cfg.tip_dark_mm)
-    faint = dark < cfg.tip_dark_min * np.array([e.array_cover for e in edges])  # NaN compares False
-    out: list[str | None] = [_FAINT if f else None for f in faint.tolist()]
-    ask = [b for b, e in enumerate(edges) if not faint[b] and not e.bubble]
+    cover = np.array([e.array_cover for e in edges])
+    faint = dark < cfg.tip_dark_min * cover  # NaN compares False
+    # the array's darkness: where its inner edge reads lighter than the survey's contrast (a
+    # wall line or a shadow along that edge), the survey's
+    darker = dark > cfg.tip_dark_max * np.maximum(cover, 1.0)
+    out: list[str | None] = [_FAINT if f else _DARKER if d else None for f, d in zip(faint.tolist(), darker.tolist())]
+    ask = [b for b, e in enumerate(edges) if out[b] is None and not e.bubble]
     if ask:
         shares = bright_past_tip([views[b] for b in ask], plan.step_mm, plan.r_tip_mm, margin, cfg.band_past_mm,
                                  cfg.band_past_level)
