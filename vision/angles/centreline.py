@@ -37,6 +37,7 @@ _BESIDE = "the array's bands show beside the dark run, not on it (its shadow fol
 
 # Why a frame whose tip lies on dark fainter than the array is not measured (:func:`tip_darkness`).
 _FAINT = "the dark at the tip is fainter than the array (a shadow or a speck past the tip?)"
+# Why a frame whose tip lies on dark far darker than the array is not measured (:func:`tip_darkness`).
 _DARKER = "the dark at the tip is darker than the array (a dark bubble or speck against it?)"
 # Why a frame with something as bright as a band just past its tip is not measured (:func:`bright_past_tip`).
 _BAND_PAST = "a metal band's brightness just past the tip (the array's end not seen?)"
@@ -355,8 +356,8 @@ def bright_past_tip(views: list[TipView], step_mm: float, r_tip_mm: float, margi
 
 def _unlike_tips(plan: MeasurePlan, edges: list[Edges], tip_f: np.ndarray, tip_v: np.ndarray) -> list[str | None]:
     """Why each frame's tip is not the array's end (its last stretch fainter than the array or far
-    darker than it, or, no bubble found, a band's brightness just past it), or None. ``tip_f`` is each tip's
-    fractional station from its ``edges.lo`` and ``tip_v`` its offset (mm)."""
+    darker than it, or, no bubble found, a band's brightness just past it), or None. ``tip_f`` is
+    each tip's fractional station from its ``edges.lo`` and ``tip_v`` its offset (mm)."""
     cfg = plan.cfg
     views = [TipView(e.fine, e.fluid, e.contrast, plan.half_mm[e.lo : e.lo + e.fine.shape[1]], plan.u, f, v)
              for e, f, v in zip(edges, tip_f.tolist(), tip_v.tolist())]
