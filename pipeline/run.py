@@ -452,7 +452,9 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
     DataFrame
         ``trial, speed_mm_s, source`` ("video" or "angles"), ``frames, frames_ok, extract``
         (status), ``sync`` (status), ``sync_method, video_t0_s`` (s), ``force_samples,
-        samples_with_angles, warnings`` (count), ``error`` (one line or empty).
+        samples_with_angles, warnings`` (count), ``error`` (one line or empty), ``refused`` (the
+        commonest reasons frames were not measured, from the extraction summary; empty for a
+        trial whose angles were given or whose frames were all measured).
     """
     from tympani.pipeline.extract.video import measured_counts
 
@@ -472,7 +474,7 @@ def trials_table(manifest: pd.DataFrame, out: Path, extract: pd.DataFrame, sync_
             frames=frames, frames_ok=ok, extract=e.get("status", "" if not from_video else "not_run"),
             sync=s.get("status", "not_run"), sync_method=s.get("method"), video_t0_s=s.get("offset_s"),
             force_samples=s.get("n_samples"), samples_with_angles=s.get("n_with_angles"),
-            warnings=len(s.get("warnings") or []), error=error or "",
+            warnings=len(s.get("warnings") or []), error=error or "", refused=e.get("refused") or "",
         ))
     return pd.DataFrame(rows)
 

@@ -24,6 +24,7 @@ from tympani.pipeline.extract import batch
 from tympani.pipeline.extract.batch import extract_batch, output_paths, process_video
 from tympani.pipeline.extract.config import ExtractConfig
 from tympani.pipeline.extract.manifest import VideoItem, read_manifest
+from tympani.pipeline.extract.records import refusal_kind, refusals, refusals_text
 from tympani.pipeline.extract.video import (ANGLE_COLUMNS, _window_medians, contact_excursions, contact_losses,
                                            extract_video, flag_contact_loss, flag_excursions, flag_few, flag_glitches,
                                            flag_lone, flag_sparse)
@@ -952,3 +953,31 @@ def test_a_long_reason_is_broken_into_lines_that_fit_the_frame():
         four = draw_text(np.full_like(image, 100), ["tip", "bot", "con", "not ok"])
         if width == 320:  # no room for the reason on one line: more lines, not a cut
             assert box.size > np.count_nonzero(four[:, 8, 0] < 60)
+
+
+@pytest.mark.parametrize("reason, kind", [
+    ("kinematics: depth 3.10 mm is +0.61 mm off the constant-speed insertion (0.5 mm/s)", "kinematics"),
+    ("contact start unclear: 1.52 rad further with the gaps 2 px narrower", "contact start unclear"),
+    ("centre line across a wall into the next turn (tip read at 3.1 rad)", "centre line across a wall into the next turn"),
+    ("no array edges within 1 mm of the dark run's end", "no array edges within 1 mm of the dark run's end"),
+    ("bright bands go on past the dark run's end (the array out of a shadow?)",
+     "bright bands go on past the dark run's end (the array out of a shadow?)"),
+    ("array too small in the image: its tip is 3.1 px wide at 16 px/mm (at least 5 px needed; film closer)",
+     "array too small in the image"),
+    ("measurement raised ValueError: bad shape", "measurement raised ValueError"),
+    ("", "not measured"),
+])
+def test_refusal_kind_leaves_out_what_is_particular_to_the_frame(reason, kind):
+    assert refusal_kind(reason) == kind
+
+
+def test_refusals_count_kinds_most_frames_first():
+    reasons = ["glitch: theta_tip 2.1 rad", "array edges not found", "glitch: theta_bot 0.4 rad", "tip out of view",
+               "array not in channel", "array not in channel", "glitch: theta_tip 2.3 rad", "unchecked: no other"]
+    counts = refusals(reasons)
+    assert counts == {"glitch": 3, "array not in channel": 2, "array edges not found": 1, "tip out of view": 1,
+                      "unchecked": 1}
+    assert refusals_text(counts) == "glitch: 3; array not in channel: 2; array edges not found: 1; 2 other kinds: 2"
+    assert refusals_text(counts, top=4) == ("glitch: 3; array not in channel: 2; array edges not found: 1; "
+                                            "tip out of view: 1; 1 other kind: 1")
+    assert refusals_text(refusals([])) == ""

@@ -5,6 +5,7 @@ bad-input test reuses its angles tables so that it extracts only its one bad vid
 """
 
 import csv
+import html
 import json
 import re
 import shutil
@@ -68,8 +69,11 @@ def test_run_on_samples_writes_every_output_and_the_report(samples_run):
     assert all("stderr" in p for p in fit["params"].values())
     diag = json.loads((out / "diagnosis" / "diagnosis.json").read_text())
     assert diag["verdict"] == "no_gap" and diag["effect"] is None  # the samples hide no effect
-    trials = pd.read_csv(out / "trials.csv")
+    trials = pd.read_csv(out / "trials.csv", keep_default_na=False)
     assert (trials["sync"] == "ok").all() and (trials["frames_ok"] / trials["frames"] > 0.9).all()
+    # why frames were not measured: for each trial with any (the report lists them)
+    short = trials["frames_ok"] < trials["frames"]
+    assert ((trials["refused"] != "") == short).all()
     run = _run_json(out)
     assert {s["status"] for s in run["stages"].values()} <= {"ok"} and run["errors"] == []
     assert run["input"]["hash"] and run["command"][:2] == ["tympani", "run"]
@@ -85,6 +89,8 @@ def test_run_on_samples_writes_every_output_and_the_report(samples_run):
     assert not re.search(r'(src|href)="(https?:)?//', page)
     assert "<script" not in page and "<link" not in page
     assert "mu_s" in page and "c1 ± s.e." in page and diag["verdict"] in page
+    assert ('id="refused"' in page) == short.any()
+    assert all(f"<code>{t}</code>: {html.escape(why)}" in page for t, why in zip(trials.trial[short], trials.refused[short]))
 
 
 def test_rerun_resumes_without_redoing_any_stage(samples_run, capsys):

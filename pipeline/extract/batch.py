@@ -24,6 +24,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -34,6 +35,7 @@ import pandas as pd
 
 from tympani.pipeline.extract.config import ExtractConfig, VisionSteps
 from tympani.pipeline.extract.manifest import VideoItem, video_items
+from tympani.pipeline.extract.records import refusals, refusals_text
 from tympani.pipeline.extract.video import extract_video, measured_counts, trial_name
 from tympani.pipeline.io import atomic_write_csv, atomic_write_json, check_writable_dir, provenance, remove_stale_temps
 from tympani.vision.errors import InputError, is_input_error, one_line
@@ -48,7 +50,8 @@ __all__ = [
 
 #: Columns of the per-video summary returned by :func:`extract_batch`.
 SUMMARY_COLUMNS: tuple[str, ...] = (
-    "trial", "path", "status", "n_frames", "n_ok", "error", "error_kind", "warnings", "n_registrations", "seconds",
+    "trial", "path", "status", "n_frames", "n_ok", "refused", "error", "error_kind", "warnings", "n_registrations",
+    "seconds",
 )
 
 
@@ -65,9 +68,18 @@ def output_paths(out_dir: str | os.PathLike, trial: str) -> dict[str, Path]:
 
 def _summary(trial: str, path: Path, status: str, **values: Any) -> dict:
     row: dict[str, Any] = {c: None for c in SUMMARY_COLUMNS}
-    row.update(trial=trial, path=str(path), status=status, error="", error_kind="", warnings="")
+    row.update(trial=trial, path=str(path), status=status, refused="", error="", error_kind="", warnings="")
     row.update(values)
     return row
+
+
+def _refused_before(provenance_path: Path) -> dict[str, int]:
+    """The ``refused`` counts a finished video's provenance holds (empty when it holds none)."""
+    try:
+        counts = json.loads(provenance_path.read_text()).get("refused", {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {str(k): int(v) for k, v in counts.items()} if isinstance(counts, dict) else {}
 
 
 def process_video(
@@ -125,12 +137,14 @@ def process_video(
     if not overwrite and all(f.exists() for f in files.values()):
         counts = measured_counts(files["angles"])
         if counts is not None:
-            return _summary(name, path, "skipped", n_frames=counts[0], n_ok=counts[1], seconds=0.0)
+            return _summary(name, path, "skipped", n_frames=counts[0], n_ok=counts[1],
+                            refused=refusals_text(_refused_before(files["provenance"])), seconds=0.0)
     t0 = time.perf_counter()
     table, registration = extract_video(path, cfg, fps=fps, trial=name, progress=progress, steps=steps)
     registrations = table.attrs["registrations"]
     warnings = list(table.attrs["warnings"])
     n_ok = int(table["ok"].sum())
+    refused = refusals(table.loc[~table["ok"], "reason"].astype(str))
     seconds = time.perf_counter() - t0
     reg_record = {**registration.to_dict(), "registrations": registrations, "lost": table.attrs["lost"],
                   "array_width_ratio": table.attrs["array_width"]}
@@ -142,6 +156,7 @@ def process_video(
         outputs={k: f.name for k, f in files.items()},
         n_frames=len(table),
         n_ok=n_ok,
+        refused=refused,
         checks=[{"frame": f, "residual_px": r} for f, r in table.attrs["checks"]],
         warnings=warnings,
         timing_s={**table.attrs["timing_s"], "total": seconds},
@@ -161,7 +176,7 @@ def process_video(
         raise
     return _summary(
         name, path, "ok",
-        n_frames=len(table), n_ok=n_ok, warnings="; ".join(warnings),
+        n_frames=len(table), n_ok=n_ok, refused=refusals_text(refused), warnings="; ".join(warnings),
         n_registrations=len(registrations), seconds=round(seconds, 3),
     )
 

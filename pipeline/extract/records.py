@@ -5,19 +5,51 @@ each frame's result (:class:`MeasuredFrame`). :mod:`tympani.pipeline.extract.str
 from __future__ import annotations
 
 import math
+import re
+from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from tympani.vision.frames import Frame
 
-__all__ = ["Check", "Epoch", "LostSpan", "ExtractLog", "MeasuredFrame", "mark_not_ok"]
+__all__ = ["Check", "Epoch", "LostSpan", "ExtractLog", "MeasuredFrame", "mark_not_ok", "refusal_kind", "refusals",
+           "refusals_text"]
 
 
 def mark_not_ok(row: dict, reason: str) -> None:
     """Mark an angles-table row not ok (in place): ``ok`` False, NaN angles, ``reason``."""
     row.update(ok=False, theta_tip=math.nan, theta_bot=math.nan, theta_con=math.nan, reason=reason)
+
+
+_PARTICULARS = re.compile(r"\s*\([^)]*\d[^)]*\)")
+
+
+def refusal_kind(reason: str) -> str:
+    """A frame's ``reason`` without what is particular to the frame, so that frames refused alike
+    group together: the text before its first colon (``"kinematics: depth 3.10 mm is ..."`` ->
+    ``"kinematics"``), less any parenthesis holding a number (``"... next turn (tip read at 3.1
+    rad)"``). A reason with neither is its own kind."""
+    head = " ".join(str(reason).split(":", 1)[0].split())
+    return _PARTICULARS.sub("", head).strip() or "not measured"
+
+
+def refusals(reasons: Iterable[str]) -> dict[str, int]:
+    """How many frames were refused for each :func:`refusal_kind` of ``reasons`` (the refused
+    frames' reasons), most frames first (ties in order of first appearance)."""
+    return dict(Counter(refusal_kind(r) for r in reasons).most_common())
+
+
+def refusals_text(counts: dict[str, int], top: int = 3) -> str:
+    """``counts`` (:func:`refusals`) as one line, its ``top`` kinds with their frames:
+    ``"array edges not found: 12; array not in channel: 3; 2 other kinds: 4"``."""
+    items = list(counts.items())
+    parts = [f"{kind}: {n}" for kind, n in items[:top]]
+    rest = items[top:]
+    if rest:
+        parts.append(f"{len(rest)} other kind{'s' if len(rest) > 1 else ''}: {sum(n for _, n in rest)}")
+    return "; ".join(parts)
 
 
 @dataclass(frozen=True)
