@@ -206,15 +206,18 @@ def test_extract_says_why_frames_were_not_measured(capsys, tmp_path, fake_vision
     text as the summary's ``refused`` column, kept when a rerun skips the video."""
     good = fakes.write_video(tmp_path / "good.mp4", n=6)
     dim = fakes.write_video(tmp_path / "dim.mp4", n=10, dark=range(1, 8))
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"junk" * 100)
     out = tmp_path / "out"
-    code, _, err = _run(capsys, "extract", str(good), str(dim), "--out", str(out), "-q", steps=fake_vision)
-    assert code == 0
+    code, _, err = _run(capsys, "extract", str(good), str(dim), str(bad), "--out", str(out), "-q", steps=fake_vision)
+    assert code == 2
     # frames 1-7 show no array; the three left are too few to check one another
     said = "no array in view: 7; video mostly unread: 3"
     lines = [line for line in err.splitlines() if "frames measured" in line]
     assert lines == [f"tympani: warning: {dim}: 0 of 10 frames measured; frames refused: {said}"]
     summary = pd.read_csv(out / "extract_summary.csv", keep_default_na=False).set_index("trial")
     assert summary.loc["dim", "refused"] == said and summary.loc["good", "refused"] == ""
+    assert summary.loc["bad", "refused"] == ""
     prov = json.loads((out / "dim.provenance.json").read_text())
     assert prov["refused"] == {"no array in view": 7, "video mostly unread": 3}
     code, stdout, err = _run(capsys, "extract", str(good), str(dim), "--out", str(out), "-q", steps=fake_vision)

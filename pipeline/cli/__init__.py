@@ -217,8 +217,8 @@ def _run_extract(args: argparse.Namespace) -> int:
     for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
         print(f"tympani: warning: {row['path']}: {' '.join(str(row['warnings']).split())}", file=sys.stderr)
     for _, row in summary[(summary["status"] == "ok") & (2 * summary["n_ok"] < summary["n_frames"])].iterrows():
-        print(f"tympani: warning: {row['path']}: {row['n_ok']} of {row['n_frames']} frames measured; frames refused: "
-              f"{row['refused']}", file=sys.stderr)
+        print(f"tympani: warning: {row['path']}: {int(row['n_ok'])} of {int(row['n_frames'])} frames measured; "
+              f"frames refused: {row['refused']}", file=sys.stderr)
     atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)  # after the lines above: it may fail too
     counts = summary["status"].value_counts()
     print(

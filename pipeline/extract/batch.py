@@ -77,9 +77,9 @@ def _refused_before(provenance_path: Path) -> dict[str, int]:
     """The ``refused`` counts a finished video's provenance holds (empty when it holds none)."""
     try:
         counts = json.loads(provenance_path.read_text()).get("refused", {})
-    except (OSError, ValueError, AttributeError):
+        return {str(k): int(v) for k, v in counts.items()}
+    except (OSError, ValueError, TypeError, AttributeError):  # unreadable, or not as written: say nothing
         return {}
-    return {str(k): int(v) for k, v in counts.items()} if isinstance(counts, dict) else {}
 
 
 def process_video(

@@ -42,8 +42,16 @@ def refusals(reasons: Iterable[str]) -> dict[str, int]:
 
 
 def refusals_text(counts: dict[str, int], top: int = 3) -> str:
-    """``counts`` (:func:`refusals`) as one line, its ``top`` kinds with their frames:
-    ``"array edges not found: 12; array not in channel: 3; 2 other kinds: 4"``."""
+    """Refusals as one line: ``"array edges not found: 12; array not in channel: 3; 2 other
+    kinds: 4"``.
+
+    Parameters
+    ----------
+    counts : dict of str to int
+        Frames refused for each kind, most first (:func:`refusals`).
+    top : int
+        Kinds named (the commonest); the rest are summed as other kinds.
+    """
     items = list(counts.items())
     parts = [f"{kind}: {n}" for kind, n in items[:top]]
     rest = items[top:]
