@@ -42,6 +42,7 @@ def test_a_wrong_frame_marked_ok_counts_as_gross_only_there():
     table.loc[1, "theta_tip"] += 0.4
     table.loc[2, "theta_con"] += 0.6
     table.loc[3, ["theta_tip", "theta_bot", "theta_con"]] = np.nan
+    table.loc[3, "reason"] = "kinematics: depth 3.10 mm is +0.61 mm off the constant-speed insertion (0.5 mm/s)"
     table.loc[4, "theta_tip"] += 0.01
     pose = {"centre_x_px": 100.0, "centre_y_px": 50.0, "px_per_mm": 20.0, "mirrored": False}
     registered = Registration(CameraPose(centre_x_px=103.0, centre_y_px=54.0, rotation_rad=0.0, px_per_mm=20.2,
@@ -53,6 +54,7 @@ def test_a_wrong_frame_marked_ok_counts_as_gross_only_there():
     assert score.tip_median_rad == pytest.approx(0.005) and score.con_median_rad == pytest.approx(0.0)
     assert score.centre_error_px == pytest.approx(5.0) and score.scale_error_pct == pytest.approx(1.0)
     assert score.mirror_ok and score.bubbles == 0.5
+    assert score.refused == "kinematics: 1"
 
 
 @pytest.mark.parametrize("centre, doubled, expected", [

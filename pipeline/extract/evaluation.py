@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from tympani.pipeline.extract.config import ExtractConfig
+from tympani.pipeline.extract.records import refusals, refusals_text
 from tympani.pipeline.extract.video import extract_video
 from tympani.pipeline.io import atomic_write_csv, check_writable_dir
 from tympani.pipeline.synthetic import renderer_c
@@ -114,7 +115,8 @@ class VideoCase:
 class VideoScore:
     """The scores of one video (angles in rad; NaN where no frame qualifies).
 
-    ``walls_doubled_found`` says whether the registration found the walls twice, ``parallax_px``
+    ``refused`` says why the frames not measured were not, every kind of reason with its frames
+    (:func:`~tympani.pipeline.extract.records.refusals_text`). ``walls_doubled_found`` says whether the registration found the walls twice, ``parallax_px``
     how far apart it found the copies (px), and ``other_copy_error_px`` the centre error had it
     taken the other copy (px; NaN for single walls): a ``centre_error_px`` near the parallax with
     ``other_copy_error_px`` near 0 is a registration on the wrong copy, both well above 0 one
@@ -137,7 +139,7 @@ class VideoScore:
     centre_error_px: float
     scale_error_pct: float
     mirror_ok: bool
-    reasons: str
+    refused: str
     error: str = ""
     walls_doubled_found: bool = False
     parallax_px: float = 0.0
@@ -210,6 +212,7 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
     reg_centre = np.array([registration.pose.centre_x_px, registration.pose.centre_y_px])
     truth_centre = np.array([pose["centre_x_px"], pose["centre_y_px"]])
     parallax = np.asarray(registration.parallax_px, dtype=float)  # (0, 0) for single walls
+    refused = refusals(m.loc[~ok, "reason"].astype(str))
     score = VideoScore(
         **_video_fields(case, pose),
         frames=len(m), measured=int(ok.sum()), contact_frames=int(contact.sum()),
@@ -218,7 +221,7 @@ def score_video(case: VideoCase, table: pd.DataFrame, truth: pd.DataFrame, pose:
         centre_error_px=float(np.hypot(*(reg_centre - truth_centre))),
         scale_error_pct=float(100.0 * (registration.pose.px_per_mm / pose["px_per_mm"] - 1.0)),
         mirror_ok=bool(registration.pose.mirrored == pose["mirrored"]),
-        reasons="; ".join(sorted(set(m.loc[~ok, "reason"].astype(str).str[:50]))),
+        refused=refusals_text(refused, top=len(refused)),
         walls_doubled_found=bool(registration.walls_doubled),
         parallax_px=float(np.hypot(*parallax)),
         other_copy_error_px=float(np.hypot(*(reg_centre + parallax - truth_centre))) if registration.walls_doubled
@@ -280,7 +283,7 @@ def evaluate_video(seed: int, out_dir: str | os.PathLike, cfg: EvaluationConfig 
         return VideoScore(**_video_fields(case, pose), frames=len(truth), measured=0,
                           contact_frames=int(truth["in_contact"].astype(bool).sum()), gross_contact=0, gross=0,
                           tip_median_rad=nan, bot_median_rad=nan, con_median_rad=nan, centre_error_px=nan,
-                          scale_error_pct=nan, mirror_ok=False, reasons="", error=one_line(exc)[:200])
+                          scale_error_pct=nan, mirror_ok=False, refused="", error=one_line(exc)[:200])
     score, frames = score_video(case, table, truth, pose, registration, cfg)
     atomic_write_csv(out / f"v{seed}_frames.csv", frames)
     return score
