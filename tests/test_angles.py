@@ -1032,7 +1032,8 @@ def _dark_bubble_at_tip(seed: int, array: ElectrodeArray, gap_mm: float | None) 
         centre = pose.to_image((c[0] + (gap_mm + radius_mm) * ahead)[None])[0]
         r = radius_mm * pose.px_per_mm
         for at, rad, grey in ((centre, r, 40), (centre - 0.3 * r, 0.2 * r, 120)):
-            cv2.circle(img, tuple(int(round(16 * v)) for v in at), int(round(16 * rad)), (grey,) * 3, -1, cv2.LINE_AA, 4)
+            cv2.circle(img, tuple(int(round(16 * v)) for v in at), int(round(16 * rad)), (grey,) * 3, -1,
+                       cv2.LINE_AA, 4)
         img = cv2.GaussianBlur(img, (0, 0), 0.8)
     return _gray(img), pose, float(state.truth.theta_tip)
 

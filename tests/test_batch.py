@@ -958,7 +958,8 @@ def test_a_long_reason_is_broken_into_lines_that_fit_the_frame():
 @pytest.mark.parametrize("reason, kind", [
     ("kinematics: depth 3.10 mm is +0.61 mm off the constant-speed insertion (0.5 mm/s)", "kinematics"),
     ("contact start unclear: 1.52 rad further with the gaps 2 px narrower", "contact start unclear"),
-    ("centre line across a wall into the next turn (tip read at 3.1 rad)", "centre line across a wall into the next turn"),
+    ("centre line across a wall into the next turn (tip read at 3.1 rad)",
+     "centre line across a wall into the next turn"),
     ("no array edges within 1 mm of the dark run's end", "no array edges within 1 mm of the dark run's end"),
     ("bright bands go on past the dark run's end (the array out of a shadow?)",
      "bright bands go on past the dark run's end (the array out of a shadow?)"),

@@ -90,7 +90,8 @@ def test_run_on_samples_writes_every_output_and_the_report(samples_run):
     assert "<script" not in page and "<link" not in page
     assert "mu_s" in page and "c1 ± s.e." in page and diag["verdict"] in page
     assert ('id="refused"' in page) == short.any()
-    assert all(f"<code>{t}</code>: {html.escape(why)}" in page for t, why in zip(trials.trial[short], trials.refused[short]))
+    assert all(f"<code>{t}</code>: {html.escape(why)}" in page
+               for t, why in zip(trials.trial[short], trials.refused[short]))
 
 
 def test_rerun_resumes_without_redoing_any_stage(samples_run, capsys):

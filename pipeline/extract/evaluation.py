@@ -116,11 +116,11 @@ class VideoScore:
     """The scores of one video (angles in rad; NaN where no frame qualifies).
 
     ``refused`` says why the frames not measured were not, every kind of reason with its frames
-    (:func:`~tympani.pipeline.extract.records.refusals_text`). ``walls_doubled_found`` says whether the registration found the walls twice, ``parallax_px``
-    how far apart it found the copies (px), and ``other_copy_error_px`` the centre error had it
-    taken the other copy (px; NaN for single walls): a ``centre_error_px`` near the parallax with
-    ``other_copy_error_px`` near 0 is a registration on the wrong copy, both well above 0 one
-    between the copies.
+    (:func:`~tympani.pipeline.extract.records.refusals_text`). ``walls_doubled_found`` says
+    whether the registration found the walls twice, ``parallax_px`` how far apart it found the
+    copies (px), and ``other_copy_error_px`` the centre error had it taken the other copy (px; NaN
+    for single walls): a ``centre_error_px`` near the parallax with ``other_copy_error_px`` near 0
+    is a registration on the wrong copy, both well above 0 one between the copies.
     """
 
     seed: int

@@ -276,7 +276,8 @@ def _trials(data: dict) -> str:
         items = "".join(f"<li><code>{_e(trial)}</code>: {_e(w)}</li>" for trial, w in warnings)
         notes = (f'<details class="note" id="sync-warnings"><summary>{len(warnings)} sync warning(s) '
                  f"(synced.sync.json)</summary><ul>{items}</ul></details>")
-    refused = [(r["trial"], r["refused"]) for r in t.to_dict("records") if isinstance(r.get("refused"), str) and r["refused"]]
+    refused = [(r["trial"], r["refused"]) for r in t.to_dict("records")
+               if isinstance(r.get("refused"), str) and r["refused"]]
     if refused:
         items = "".join(f"<li><code>{_e(trial)}</code>: {_e(why)}</li>" for trial, why in refused)
         notes += (f'<details class="note" id="refused"><summary>Why frames were not measured, in {len(refused)} '
