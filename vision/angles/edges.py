@@ -343,7 +343,11 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     scale, shift = -1.0 / contrast, fluid / contrast  # coverage = blurred * scale + shift
     seed_c = np.stack([sv.seed_c for sv in surveys])
     seed = np.minimum(sa * take2d(seed_c, strip.row, station // sa), len(plan.u) - 1)
-    at_seed = take2d(blurred, seed, np.arange(len(station))).astype(np.float32) * scale + shift
+    # the coverage of every sample, once for the windows, the bubbles and the edges (float64; the
+    # blurred levels are exact in it)
+    coverage = blurred * scale
+    coverage += shift
+    at_seed = take2d(coverage, seed, np.arange(len(station)))
     darkness = np.where(np.take(plan.in_view, station), at_seed, 0.0)
     first_n = np.minimum(tips + sa, hi - 1) - lo + 1  # stations where the array's dark end is sought
     last_dark = strip.last((darkness >= cfg.dark_level) & (strip.local < first_n[strip.row]))
@@ -363,13 +367,13 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
             half_median[span_b] = median(plan.half_mm[span_b[0] : span_b[1]])
         half_b = half_median[span_b]
         windows.append((b, end, a, cols, half_b, inner <= 1.0 - cfg.wall_margin_px / (half_b * ppm)))
-    candidates = with_compact([(blurred[:, cols] * scale[cols] + shift[cols] <= cfg.bubble_bright) & i[:, None]
+    candidates = with_compact([(coverage[:, cols] <= cfg.bubble_bright) & i[:, None]
                                for *_, cols, _, i in windows], step,
                                np.array([du * w[4] for w in windows]), cfg)
     for (b, end, a, cols, half_b, inside_b), candidate in zip(windows, candidates.tolist()):
         if not candidate:  # no bubble-like component in the window: bubble_end would find none
             continue
-        cut, stop = bubble_end(blurred[:, cols] * scale[cols] + shift[cols], darkness[cols] >= cfg.dark_level,
+        cut, stop = bubble_end(coverage[:, cols], darkness[cols] >= cfg.dark_level,
                                seed[cols], inside_b, end - a, step, du * half_b, 2.0 * plan.r_tip_mm, cfg)
         if stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
@@ -377,9 +381,7 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     # the stations that hold the array
     arr = Ragged.of(np.where(last_dark >= 0, last_dark + 1, tips - lo + 1))
     take = strip.start[arr.row] + arr.local
-    cover = np.take(blurred, take, axis=1).astype(np.float64)  # = the float32 levels, exactly
-    cover *= np.take(scale, take)  # float64 throughout: a float32 operand costs a cast pass
-    cover += np.take(shift, take)
+    cover = np.take(coverage, take, axis=1)
     seed_a, dark_a = np.take(seed, take), np.take(darkness, take)
     half = np.take(plan.half_mm, lo[arr.row] + arr.local)
     px = du * half * ppm  # px per offset index at each station
