@@ -299,7 +299,8 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     low = coarse + plan.coarse_penalty
     darkest = low.min(axis=1)
     seed_c = (low == darkest[:, None, :]).argmax(axis=1) + plan.coarse_row0  # = argmin (finite values), faster
-    brightest = (coarse - plan.coarse_penalty).max(axis=1)
+    high = coarse - plan.coarse_penalty
+    brightest = high.max(axis=1)
     pair_penalty = plan.coarse_penalty[1:] + plan.coarse_penalty[:-1]
     steepest = (np.abs(coarse[:, 1:] - coarse[:, :-1]) - pair_penalty).max(axis=1)
     view_c = plan.in_view[::sa]
@@ -329,7 +330,7 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     dark = ((1.0 - darkest / fluid_c) / (1.0 - rho2[:, None]) >= cfg.dark_level) & view_c
     # a metal band: brighter than the fluid, and no wider than the array (a bubble's bright
     # inside, against the tip, is wider)
-    lit = ((coarse - plan.coarse_penalty) >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]).sum(axis=1)
+    lit = (high >= ((1.0 + cfg.band_level) * fluid_c)[:, None, :]).sum(axis=1)
     across_mm = sa * float(plan.u[1] - plan.u[0]) * plan.half_mm[::sa]  # the coarse offsets' spacing
     band = (lit > 0) & (lit * across_mm <= cfg.band_width_mm) & view_c
     max_gap_c = cfg.max_gap_mm / (sa * step)
