@@ -810,7 +810,7 @@ def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_S
     A video whose frames mostly fail the measurement or its checks is one whose look defeats
     it (bubbles over the array, a faint array, heavy compression), and its few measured
     frames are then often wrong in the same way, frame after frame, where neither the glitch
-    filter nor the kinematics check can tell (docs/validation.md: on the evaluation renderers,
+    filter nor the kinematics check can tell (docs/validation-history.md: on the evaluation renderers,
     a third of the frames measured in videos measured on at most half their frames were grossly
     wrong, under 2 % in the others).
 
