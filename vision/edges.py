@@ -32,6 +32,7 @@ from tympani.vision.greyscale import as_float_gray, is_float_gray
 __all__ = [
     "EdgeMap",
     "gradients",
+    "gradient_magnitude",
     "auto_thresholds",
     "noise_gradient",
     "canny_edges",
@@ -68,8 +69,9 @@ class EdgeMap:
     sigma_px : float
         Gaussian smoothing (px) applied before differentiation.
     magnitude : ndarray of float32, shape (h, w)
-        ``cv2.magnitude(gx, gy)`` (grey levels per px), computed once for the thresholds and
-        shared by :func:`subpixel_edges` and the other users of the gradient's length.
+        :func:`gradient_magnitude` of them (grey levels per px), computed once for the
+        thresholds and shared by :func:`subpixel_edges` and the other users of the gradient's
+        length.
     """
 
     mask: np.ndarray
@@ -110,6 +112,32 @@ def gradients(gray: np.ndarray, sigma_px: float = 1.5) -> tuple[np.ndarray, np.n
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125, borderType=cv2.BORDER_REPLICATE)
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125, borderType=cv2.BORDER_REPLICATE)
     return gx, gy
+
+
+def gradient_magnitude(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """``cv2.magnitude(gx, gy)`` written into a 64-byte aligned array.
+
+    OpenCV's IPP path computes the elements before the output's first 32-byte boundary (and
+    after its last) another way than the rest, so those can differ in the last bit with
+    where the allocator put the output; through the thresholds and edges, a video's angles
+    then depended on the videos the process had extracted before. A fixed alignment makes
+    the result depend on ``gx`` and ``gy`` alone.
+
+    Parameters
+    ----------
+    gx, gy : ndarray of float32, shape (h, w)
+        Derivatives (grey levels per px).
+
+    Returns
+    -------
+    ndarray of float32, shape (h, w)
+        Their length (grey levels per px).
+    """
+    gx = np.asarray(gx)
+    buf = np.empty(gx.nbytes + 64, np.uint8)
+    start = -buf.ctypes.data % 64
+    out = buf[start : start + gx.nbytes].view(gx.dtype).reshape(gx.shape)
+    return cv2.magnitude(gx, gy, out)
 
 
 # Rayleigh-distributed noise gradients: median / 25th percentile = sqrt(ln 2 / ln(4/3)).
@@ -290,14 +318,14 @@ def edges_from_gradients(
     min_length_px : int
         Drop 8-connected edge segments of fewer pixels than this (px); 0 keeps all.
     magnitude : ndarray of float32, shape (h, w), optional
-        ``cv2.magnitude(gx, gy)`` (grey levels per px) if the caller has it already.
+        ``gradient_magnitude(gx, gy)`` (grey levels per px) if the caller has it already.
 
     Returns
     -------
     EdgeMap
     """
     if magnitude is None:
-        magnitude = cv2.magnitude(gx, gy)
+        magnitude = gradient_magnitude(gx, gy)
     if high is None:
         high = auto_thresholds(magnitude)[1]
     if low is None:
@@ -615,7 +643,7 @@ def sigma_from_gradients(
         Sigma (px).
     """
     return sigma_from_magnitude(
-        cv2.magnitude(gx, gy), target_noise_gradient=target_noise_gradient, sigma_range=sigma_range
+        gradient_magnitude(gx, gy), target_noise_gradient=target_noise_gradient, sigma_range=sigma_range
     )
 
 
@@ -625,7 +653,7 @@ def sigma_from_magnitude(
     target_noise_gradient: float = 0.5,
     sigma_range: tuple[float, float] = (1.0, 2.5),
 ) -> float:
-    """:func:`sigma_from_gradients` from ``cv2.magnitude(gx, gy)`` (grey levels per px).
+    """:func:`sigma_from_gradients` from ``gradient_magnitude(gx, gy)`` (grey levels per px).
 
     Returns
     -------

@@ -14,6 +14,7 @@ from tympani.vision.greyscale import as_float_gray
 from tympani.vision.edges import (
     EdgeMap,
     doubled_angles,
+    gradient_magnitude,
     gradients,
     sigma_from_magnitude,
     splat_vector_sets,
@@ -203,12 +204,12 @@ def gradients_for_canny(
 
     ``sigma_px`` None picks the smoothing from the noise (:func:`tympani.vision.edges.auto_sigma`);
     the 1 px derivatives that takes, and their magnitude, are reused when it keeps 1 px
-    (clean frames) rather than computed again. The last item is ``cv2.magnitude(gx, gy)``
+    (clean frames) rather than computed again. The last item is ``gradient_magnitude(gx, gy)``
     when it was computed on the way, else None.
     """
     if sigma_px is None:
         gx, gy = gradients(gray, 1.0)
-        magnitude = cv2.magnitude(gx, gy)
+        magnitude = gradient_magnitude(gx, gy)
         sigma_px = sigma_from_magnitude(magnitude)
         if sigma_px == 1.0:
             return gx, gy, sigma_px, magnitude
