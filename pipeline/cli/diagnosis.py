@@ -78,10 +78,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
 def configure_evaluate(p: argparse.ArgumentParser) -> None:
     """Arguments of ``tympani evaluate-diagnosis``."""
-    p.add_argument("--cases", type=positive_int, default=70, metavar="N", help="number of generated cases (default 70)")
+    p.add_argument("--cases", type=positive_int, default=70, metavar="N",
+                   help="number of generated cases per family (default 70)")
     p.add_argument("--seed", type=int, default=0, help="seed of the evaluation (default 0)")
     p.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
-    p.add_argument("--out", metavar="DIR", help="also write cases.csv and summary.json to this folder")
+    p.add_argument("--out", metavar="DIR", help="also write each family's cases.csv, summary.json and summary.txt to "
+                                                "DIR/family_A/, DIR/family_B/")
     p.add_argument("--trials", type=positive_int, default=10, metavar="N", help="repeats per speed (default 10)")
     p.add_argument("--family", default="A,B", metavar="F,..",
                    help="generator families of the data, comma-separated: A (the project's first generator) and B "

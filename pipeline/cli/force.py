@@ -39,7 +39,7 @@ SIMULATE_DESCRIPTION = (
 PAPER_HELP = "the paper's TABLE II beside the model, and the constants fitted to it"
 PAPER_DESCRIPTION = (
     "Fit the constants the seed paper does not print (effective contact width, Stribeck velocity and "
-    "exponent, which of 0.12/0.18 is static, S4's garbled fourth p_bot, the friction projection) to its "
+    "exponent, which of 0.12/0.18 is static, the garbled fourth p_bot of S3 (and S4), the friction projection) to its "
     "TABLE II, and print the table beside the model cell by cell with the residuals, the speed effect step "
     "by step against the paper's, friction's share of the force, the chosen constants and every "
     "combination tried. With --out DIR also writes table_ii.csv, table_ii_speed.csv and table_ii_fit.json."
