@@ -215,12 +215,13 @@ def test_extract_says_why_frames_were_not_measured(capsys, tmp_path, fake_vision
     said = "no array in view: 7; video mostly unread: 3"
     lines = [line for line in err.splitlines() if "frames measured" in line]
     assert lines == [f"tympani: warning: {dim}: 0 of 10 frames measured; frames refused: {said}"]
+    assert [line for line in err.splitlines() if "tympani: hint:" in line and "tympani annotate" in line] != []
     summary = pd.read_csv(out / "extract_summary.csv", keep_default_na=False).set_index("trial")
     assert summary.loc["dim", "refused"] == said and summary.loc["good", "refused"] == ""
     assert summary.loc["bad", "refused"] == ""
     prov = json.loads((out / "dim.provenance.json").read_text())
     assert prov["refused"] == {"no array in view": 7, "video mostly unread": 3}
     code, stdout, err = _run(capsys, "extract", str(good), str(dim), "--out", str(out), "-q", steps=fake_vision)
-    assert code == 0 and "2 skipped" in stdout and "frames measured;" not in err
+    assert code == 0 and "2 skipped" in stdout and "frames measured;" not in err and "hint:" not in err
     summary = pd.read_csv(out / "extract_summary.csv", keep_default_na=False).set_index("trial")
     assert summary.loc["dim", "refused"] == said

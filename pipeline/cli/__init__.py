@@ -216,9 +216,13 @@ def _run_extract(args: argparse.Namespace) -> int:
         print(f"tympani: {row['error']}", file=sys.stderr)
     for _, row in summary[(summary["status"] == "ok") & (summary["warnings"].fillna("") != "")].iterrows():
         print(f"tympani: warning: {row['path']}: {' '.join(str(row['warnings']).split())}", file=sys.stderr)
-    for _, row in summary[(summary["status"] == "ok") & (2 * summary["n_ok"] < summary["n_frames"])].iterrows():
+    sparse = summary[(summary["status"] == "ok") & (2 * summary["n_ok"] < summary["n_frames"])]
+    for _, row in sparse.iterrows():
         print(f"tympani: warning: {row['path']}: {int(row['n_ok'])} of {int(row['n_frames'])} frames measured; "
               f"frames refused: {row['refused']}", file=sys.stderr)
+    if len(sparse):
+        print("tympani: hint: 'tympani annotate VIDEO --out DIR' draws what was measured on a video's frames; "
+              "the angles table's reason column says why each frame was refused", file=sys.stderr)
     atomic_write_csv(os.path.join(args.out, "extract_summary.csv"), summary)  # after the lines above: it may fail too
     counts = summary["status"].value_counts()
     print(
