@@ -163,6 +163,42 @@ def _repeats_bands(k: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, h: np.nd
     return bool(like and apart and abs(p1 - p2) <= pitch_tol * max(p1, p2))
 
 
+def _in_train(k: int, x: np.ndarray, w: np.ndarray, y: np.ndarray, h: np.ndarray, compact: np.ndarray,
+              size_tol: float, pitch_tol: float) -> bool:
+    """Whether the bright interior ``k`` is one of three in a row on its track (before it, after
+    it or both) of one size and at one pitch, whatever lies between them: a train of metal bands
+    with little body between, or a chain of equal bubbles; nothing in the window tells which.
+
+    Parameters
+    ----------
+    k : int
+        A bubble-like interior (component).
+    x, w, y, h : ndarray of int
+        Bounding boxes (first station, stations, first offset, offsets) of all components.
+    compact : ndarray of bool
+        Which components could be a bubble's interior.
+    size_tol, pitch_tol : float
+        Largest relative difference (dimensionless) in length and width, and in pitch.
+    """
+    like = compact & (y < y[k] + h[k]) & (y[k] < y + h)
+    for a in (w, h):
+        like &= np.abs(a.astype(int) - int(a[k])) <= np.maximum(2.0, size_tol * a[k])
+    row = np.flatnonzero(like)
+    row = row[np.argsort(x[row])]
+    at = int(np.flatnonzero(row == k)[0])
+    for first in range(max(at - 2, 0), min(at, len(row) - 3) + 1):
+        a, b, c = (int(x[j]) for j in row[first : first + 3])
+        p1, p2 = b - a, c - b
+        if min(p1, p2) > 0 and abs(p1 - p2) <= pitch_tol * max(p1, p2):
+            return True
+    return False
+
+
+# What :func:`bubble_end` gives as ``stop`` where the bubble-like interiors on the array's path
+# are three or more in a row, of one size and at one pitch (:func:`_in_train`).
+TRAIN = -1
+
+
 # How far (times the array's diameter) the array's track may pass beside a bubble's interior and
 # still push it: an array riding a wall meets a bubble pushed off towards the channel's middle.
 _TRACK_MARGIN = 0.125
@@ -247,7 +283,10 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
     end : int
         The array's last station (``end`` when no bubble is on its path; -1 when none is left).
     stop : int or None
-        The first station of the bubble's rim (the tip lies before it), or None.
+        The first station of the bubble's rim (the tip lies before it), or None; :data:`TRAIN`
+        where the first bubble-like interior on the array's path is one of three or more in a
+        row of one size and at one pitch: metal bands with little body between them, or a chain
+        of equal bubbles, which the window cannot tell apart.
     """
     bright = ((cover <= cfg.bubble_bright) & inside[:, None]).astype(np.uint8)
     count, labels, stats, _ = cv2.connectedComponentsWithStats(bright, connectivity=4)
@@ -277,6 +316,8 @@ def bubble_end(cover: np.ndarray, dark: np.ndarray, seed: np.ndarray, inside: np
             continue  # as narrow as a band, with array before and beyond it
         if narrow and _repeats_bands(k, x, w, y, h, compact, _BAND_SIZE_TOL, _BAND_PITCH_TOL, chain):
             continue  # a band like the two before it, however thin the cap beyond
+        if _in_train(k, x, w, y, h, compact, _BAND_SIZE_TOL, _BAND_PITCH_TOL):
+            return end, TRAIN  # bands with little body between, or a chain of equal bubbles
         k, far = _chain_start(k, far, x, w, y, h, compact, chain)
         # the rim before it, and any array it touches: the longest dark run that ends where the
         # interior begins, over the interior's rows

@@ -97,6 +97,13 @@ class MeasureConfig:
     fluid_floor : float
         A block darker than this fraction of its brightest neighbour within ``fluid_reach_mm``
         is taken to be filled by the array, and its fluid level interpolated.
+    band_open_mm : float
+        Length (mm) along the channel below which bright stretches (metal bands, glints) are
+        removed from the stations' brightest values for the fluid's band-free level.
+    band_fill_rise : float
+        A block whose first fluid level stands more than this fraction above its band-free
+        level is one that metal bands fill for the most part (long bands, little body between
+        them: its percentile falls on their blurred shoulders), and takes the band-free level.
     probe_mm : float
         Length (mm) of the outer end of the entry channel where the array must be seen.
     beside_mm : float
@@ -342,6 +349,8 @@ class MeasureConfig:
     fluid_percentile: float = 25.0
     fluid_reach_mm: float = 3.0
     fluid_floor: float = 0.85
+    band_open_mm: float = 1.0
+    band_fill_rise: float = 0.3
     probe_mm: float = 1.5
     beside_mm: float = 0.3
     band_border_mm: float = 0.1

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from tympani.vision.angles.arrays import accumulate_rows, median, odd_ceil, take2d
-from tympani.vision.angles.bubbles import bubble_end, with_compact
+from tympani.vision.angles.bubbles import TRAIN, bubble_end, with_compact
 from tympani.vision.angles.config import MeasureConfig
 from tympani.vision.angles.plan import MeasurePlan
 from tympani.vision.angles.ragged import (
@@ -38,7 +38,9 @@ class Edges:
     with a lighter shelf beyond it out to the dark's edge (NaN where none; :func:`_shelf_edges`),
     ``level`` the coverage half way between the fluid and the array beside it, ``array_cover``
     the array's coverage just inside its inner edge (1: the survey's contrast), ``bubble``
-    whether an air bubble was found at or ahead of the tip.
+    whether an air bubble was found at or ahead of the tip, ``train`` whether bright interiors in
+    a row there (metal bands or a chain of bubbles, :data:`~tympani.vision.angles.bubbles.TRAIN`)
+    leave it open where the array ends.
     """
 
     lo: int
@@ -56,6 +58,7 @@ class Edges:
     level: float
     array_cover: float
     bubble: bool = False
+    train: bool = False
 
 
 def _crossing(cover: np.ndarray, j: np.ndarray, cols: np.ndarray, level: float | np.ndarray) -> np.ndarray:
@@ -358,6 +361,7 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
     # its bright pixels (coverage, blurred * scale + shift, up to cfg.bubble_bright) clear of the walls
     windows = []
     bubble = np.zeros(len(surveys), dtype=bool)
+    train = np.zeros(len(surveys), dtype=bool)
     half_median: dict[tuple[int, int], float] = {}  # frames with the same window share its median
     for b in np.flatnonzero(last_dark >= 0).tolist():
         end, a = int(last_dark[b]), max(int(last_dark[b]) - back, 0)
@@ -375,7 +379,9 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
             continue
         cut, stop = bubble_end(coverage[:, cols], darkness[cols] >= cfg.dark_level,
                                seed[cols], inside_b, end - a, step, du * half_b, 2.0 * plan.r_tip_mm, cfg)
-        if stop is not None:
+        if stop == TRAIN:
+            train[b] = True
+        elif stop is not None:
             last_dark[b], extent[b] = max(cut + a, 0), stop + a
             bubble[b] = True
     # the stations that hold the array
@@ -423,5 +429,6 @@ def edges_batch(imgs: list[np.ndarray], plan: MeasurePlan, surveys: list[Survey]
         a = slice(s, s + m)
         out.append(Edges(int(lo[b]), m, fines[b][:, :w], fluid[s0 : s0 + w], contrast[s0 : s0 + w], seed[s0 : s0 + w],
                           v_in[a], v_out[a], ok_in[a], ok_out[a], core_in[a], core_out[a],
-                          0.5 * (float(c_f[b]) + float(c_a[b])), float(c_a[b]), bool(bubble[b])))
+                          0.5 * (float(c_f[b]) + float(c_a[b])), float(c_a[b]), bool(bubble[b]),
+                          bool(train[b])))
     return out

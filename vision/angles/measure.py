@@ -168,6 +168,9 @@ _ERRORS = (ValueError, IndexError, FloatingPointError, cv2.error)
 # Why a frame whose dark run is followed by a train of bright stretches (metal bands, with the
 # array's body too light to count as dark) is not measured (:attr:`Survey.resumes`).
 _RESUMES = "bright bands go on past the dark run's end (the array out of a shadow?)"
+# ... and one whose tip meets bright interiors in a row, as alike as metal bands or a chain of
+# equal bubbles (:data:`~tympani.vision.angles.bubbles.TRAIN`).
+_TRAIN = "bright interiors in a row at the tip: metal bands with little body between, or a chain of bubbles?"
 # ... and one followed by stretch after stretch of part dark (:attr:`Survey.lighter`), bubbles or not.
 _LIGHTER = "part-dark stretches go on past the dark run's end (bands blurred into the array's body?)"
 
@@ -190,7 +193,9 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             t2 = time.perf_counter()
             lines = centre_line_batch(plan, edges) if found else []
             for j, k in enumerate(found):  # bright stretches past the tip that no bubble explains
-                if surveys[k].resumes and not edges[j].bubble:
+                if edges[j].train:
+                    lines[j] = _TRAIN
+                elif surveys[k].resumes and not edges[j].bubble:
                     lines[j] = _RESUMES
                 elif surveys[k].lighter:
                     lines[j] = _LIGHTER

@@ -39,6 +39,49 @@ class Survey:
     lighter: bool = False
 
 
+def _first_fluid_levels(brightest: np.ndarray, in_view: np.ndarray, block: int, reach: int, band_length: int,
+                        cfg: MeasureConfig) -> np.ndarray:
+    """The survey's first fluid level (:func:`_fluid_levels` at ``cfg.fluid_percentile``), shape
+    (B, n), grey levels, taken without the metal bands where they fill most of a block.
+
+    Where long bands with little body between fill most of a block, its percentile lies on
+    their blurred shoulders, far above the fluid seen between them (and beside the array there
+    no longer reads as fluid). Where the level stands more than ``cfg.band_fill_rise`` above the
+    same level of ``brightest`` without bright stretches shorter than ``band_length`` stations
+    (:func:`_without_bands`), the latter is taken. Blocks the array fills in part, noise and
+    shading leave the two levels close, and the first stands; so does the first level where it
+    eases down to the fluid's over the two blocks past the bands' end (a median over three
+    blocks, interpolated between their centres), up to ``cfg.band_fill_rise`` above it: taking
+    the lower level there as well measured fewer frames on independent renderers.
+
+    Parameters
+    ----------
+    brightest : ndarray, shape (B, n), float32
+        Brightest interior value (grey levels) at each station of each frame.
+    in_view : ndarray, shape (B, n), bool
+        Stations used, per frame.
+    block, reach : int
+        As :func:`_fluid_levels` takes them (stations, blocks).
+    band_length : int
+        Longest bright stretch (stations) removed: ``cfg.band_open_mm`` in stations.
+    cfg : MeasureConfig
+        ``fluid_percentile``, ``fluid_floor`` and ``band_fill_rise``.
+    """
+    level = _fluid_levels(brightest, in_view, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
+    bare = _fluid_levels(_without_bands(brightest, band_length), in_view, block, cfg.fluid_percentile, reach,
+                         cfg.fluid_floor)
+    return np.where(level > (1.0 + cfg.band_fill_rise) * bare, bare, level)
+
+
+def _without_bands(brightest: np.ndarray, length: int) -> np.ndarray:
+    """``brightest`` (shape (B, n), float32, grey levels) with its bright stretches shorter than
+    ``length`` stations (metal bands, glints) cut down to their surroundings: a grey-level
+    opening along the channel, which keeps every dark stretch and every longer bright one
+    (the fluid beyond the tip) as they are."""
+    kernel = np.ones((1, 2 * (max(1, int(length)) // 2) + 1), np.uint8)
+    return cv2.morphologyEx(brightest, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+
+
 def _band_border_c(cfg: MeasureConfig, step_mm: float) -> int:
     """Coarse stations either side of a band's border kept out of the fluid's second estimate
     (``cfg.band_border_mm``, at least 2), for stations ``step_mm`` (mm) apart."""
@@ -311,7 +354,7 @@ def survey_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[Survey | Fra
     reach = int(np.ceil(cfg.fluid_reach_mm / cfg.fluid_window_mm))
     min_beside = int(np.ceil(cfg.beside_mm / (sa * step)))
     views = np.broadcast_to(view_c, brightest.shape)
-    fluid_c = _fluid_levels(brightest, views, block, cfg.fluid_percentile, reach, cfg.fluid_floor)
+    fluid_c = _first_fluid_levels(brightest, views, block, reach, int(round(cfg.band_open_mm / (sa * step))), cfg)
     entry_c = view_c & (np.arange(len(view_c)) * sa < plan.i_start)
     rho1 = _array_ratio_low(darkest, brightest, steepest, fluid_c, view_c, entry_c, min_beside)
     rho = rho1[:, None]
