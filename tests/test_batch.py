@@ -480,6 +480,26 @@ def test_flag_sparse_marks_videos_measured_on_at_most_the_share():
                                          "measured (at most 50%)")
 
 
+def test_flag_stripes_marks_a_video_whose_frames_show_stripes_past_the_tip():
+    """Three frames refused for regular stripes past their tip mark every measured frame of the
+    video (the array's bands go unseen on the others too); two are left alone, and 0 turns
+    the check off."""
+    from tympani.pipeline.extract.video import flag_stripes
+    from tympani.vision.angles.beyond import STRIPES_PAST_TIP
+
+    def rows(striped):
+        return [dict(frame=i, ok=i not in striped, theta_tip=1.0, theta_bot=0.5, theta_con=0.5,
+                     reason=STRIPES_PAST_TIP if i in striped else "") for i in range(20)]
+
+    r = rows({2, 9, 15})
+    assert flag_stripes(r, 3) == ("17 frame(s) marked not ok: video: 3 frames show regular stripes past their "
+                                  "tip (the array's bands unseen?)")
+    assert not any(x["ok"] for x in r) and math.isnan(r[0]["theta_tip"]) and r[2]["reason"] == STRIPES_PAST_TIP
+    for striped, least in (({2, 9}, 3), ({2, 9, 15}, 0)):
+        r = rows(striped)
+        assert flag_stripes(r, least) == "" and sum(x["ok"] for x in r) == 20 - len(striped)
+
+
 def test_flag_few_marks_a_handful_of_frames_in_a_long_video():
     """Four frames measured of twenty, close together: too few to check one another, all marked;
     five are left alone, and so are four of seven (half of the frames with a registration is the

@@ -126,6 +126,11 @@ class ExtractConfig:
         :data:`~tympani.pipeline.extract.video.SPARSE_FEW` frames and this share of all the video's
         frames (:func:`~tympani.pipeline.extract.video.flag_few`, after the lone-frame check); 0
         keeps every frame.
+    stripe_frames : int
+        When at least this many frames of a video were refused for regular stripes past their tip
+        (the array's bands going on, unseen), its measured frames are marked not ok too: the
+        array's look hides its apical part, and the tips read short advance at the insertion's
+        speed (:func:`~tympani.pipeline.extract.video.flag_stripes`); 0 keeps every frame.
     calibration : vision.frames.LensCalibration or None
         The camera's lens. Frames are undistorted with it (:func:`tympani.vision.frames.undistorter`)
         before they are registered, checked or drawn, so the pose is that of the ideal pinhole
@@ -151,6 +156,7 @@ class ExtractConfig:
     excursion_rad: float = 0.5
     lone_reach: int = 3
     sparse_share: float = 0.5
+    stripe_frames: int = 3
     calibration: LensCalibration | None = None
 
     def __post_init__(self) -> None:
@@ -169,6 +175,8 @@ class ExtractConfig:
             raise ValueError(f"lone_reach must be an integer >= 0, not {self.lone_reach!r}")
         if not self.kinematics_tol_mm >= 0:
             raise ValueError(f"kinematics_tol_mm must be >= 0 mm, not {self.kinematics_tol_mm!r}")
+        if int(self.stripe_frames) != self.stripe_frames or self.stripe_frames < 0:
+            raise ValueError(f"stripe_frames must be an integer >= 0, not {self.stripe_frames!r}")
         if not 0.0 <= self.sparse_share < 1.0:
             raise ValueError(f"sparse_share must be in [0, 1), not {self.sparse_share!r}")
         if not self.measure_batch_mb > 0:

@@ -34,6 +34,7 @@ from tympani.pipeline.extract.records import mark_not_ok
 from tympani.pipeline.extract.stream import (Check, Epoch, ExtractLog, frame_row, lens_undistorter, measure_frames,
                                              measured_row, prepare_plan)
 from tympani.pipeline.force.forcelog import read_csv_columns
+from tympani.vision.angles.beyond import STRIPES_PAST_TIP
 from tympani.vision.errors import InputError
 from tympani.vision.frames import Frame, FrameSource, open_frames
 from tympani.vision.greyscale import to_gray
@@ -153,6 +154,9 @@ def extract_video(
     if lost:
         notes.append(f"{lost} frame(s) marked not ok: their contact arc is over {cfg.excursion_rad:g} rad shorter "
                      "than the frames' before them")
+    note = flag_stripes(rows, cfg.stripe_frames)
+    if note:
+        notes.append(note)
     note = flag_sparse(rows, cfg.sparse_share)
     if note:
         notes.append(note)
@@ -802,6 +806,34 @@ SPARSE_MIN_SPAN = 10
 # A video measured on no more than this many frames (after every other check), at most the share of
 # all its frames with a registration, is judged whatever their span (:func:`flag_few`).
 SPARSE_FEW = 4
+
+
+def flag_stripes(rows: list[dict], least: int) -> str:
+    """Mark every measured frame not ok, in place, when at least ``least`` frames of the video were
+    refused for regular stripes past their tip (:data:`~tympani.vision.angles.beyond.STRIPES_PAST_TIP`).
+
+    Stripes past the tip are the array's bands going on where they are as dull as the fluid:
+    the tip is then read where the plain body ends, radians short, on every frame, and advances
+    at the insertion's speed, so neither the glitch filter nor the kinematics check sees it; the
+    frames where the stripes show are refused one by one, and where several are, the look
+    that hides the array's apical part is the video's.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Angles-table rows of one video (``ok``, ``reason``); changed in place.
+    least : int
+        Fewest frames refused so; 0 does nothing.
+
+    Returns
+    -------
+    str
+        A warning naming the count, or "" when nothing was marked.
+    """
+    n = sum(1 for r in rows if str(r.get("reason", "")) == STRIPES_PAST_TIP)
+    if least <= 0 or n < least:
+        return ""
+    return _mark_all(rows, f"video: {n} frames show regular stripes past their tip (the array's bands unseen?)")
 
 
 def flag_sparse(rows: list[dict], max_share: float, min_span: int = SPARSE_MIN_SPAN) -> str:

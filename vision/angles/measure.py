@@ -12,6 +12,7 @@ import time
 import cv2
 import numpy as np
 
+from tympani.vision.angles.beyond import STRIPES_PAST_TIP, stripe_periodicity
 from tympani.vision.angles.centreline import CentreLine, centre_line_batch
 from tympani.vision.angles.config import FrameMeasurement, MeasureConfig, failure
 from tympani.vision.angles.edges import edges_batch
@@ -175,6 +176,20 @@ _TRAIN = "bright interiors in a row at the tip: metal bands with little body bet
 _LIGHTER = "part-dark stretches go on past the dark run's end (bands blurred into the array's body?)"
 
 
+def _stripes_past_tip(imgs: list[np.ndarray], plan: MeasurePlan, results: dict[int, FrameMeasurement],
+                      contrast: dict[int, float]) -> dict[int, bool]:
+    """Which of the frames measured ok (``results``, by index into ``imgs``) show a regular pattern
+    of stripes past their tip (:func:`~tympani.vision.angles.beyond.stripe_periodicity`), varying
+    by at least ``plan.cfg.stripe_spread`` of the array's ``contrast`` (grey levels)."""
+    cfg = plan.cfg
+    ok = [k for k, r in results.items() if r.ok]
+    if not ok:
+        return {}
+    correlation, spread = stripe_periodicity([imgs[k] for k in ok], plan, np.array([results[k].theta_tip for k in ok]), cfg)
+    hit = (correlation >= cfg.stripe_correlation) & (spread >= cfg.stripe_spread * np.array([contrast[k] for k in ok]))
+    return dict(zip(ok, hit.tolist()))
+
+
 def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasurement]:
     """The four stages on grey frames of the plan's shape, all frames at once.
 
@@ -203,6 +218,8 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             measured = [j for j, c in enumerate(lines) if isinstance(c, CentreLine)]
             finals = results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j], plan.step_mm))
                                            for j in measured]) if measured else []
+            striped = _stripes_past_tip(imgs, plan, {found[j]: f for j, f in zip(measured, finals)},
+                                        {found[j]: surveys[found[j]].contrast for j in measured})
             t4 = time.perf_counter()
     except _ERRORS as exc:
         if len(imgs) > 1:
@@ -222,6 +239,8 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             result.timings.update(survey=share[0], edges=share[1], centre_line=share[2])
         else:
             result = final_of[by_frame[k]]
+            if striped.get(k, False):
+                result = failure(STRIPES_PAST_TIP, contrast=sv.contrast)
             result.timings.update(survey=share[0], edges=share[1], centre_line=share[2], angles=share[3])
         result.extras["time_ms"] = 1e3 * sum(result.timings.values())
         out.append(result)
