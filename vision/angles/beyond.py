@@ -91,17 +91,23 @@ def stripe_periodicity(imgs: list[np.ndarray], plan: MeasurePlan, theta_tips: np
     step = plan.step_mm
     length = int(round(cfg.stripe_length_mm / step))
     firsts = np.searchsorted(plan.station_theta, np.asarray(theta_tips, dtype=float)) + int(round(cfg.stripe_skip_mm / step))
-    seen = [b for b, first in enumerate(firsts.tolist())
-            if first + length <= plan.map_x.shape[1] and plan.in_view[first : first + length].all()
-            and (plan.fine_penalty[:, first : first + length] == 0).any(axis=0).all()]
     correlation, spread = np.full(len(imgs), np.nan), np.full(len(imgs), np.nan)
+    seen, strips, interiors = [], [], []
+    for b, first in enumerate(firsts.tolist()):
+        span = slice(first, first + length)
+        if first + length > plan.map_x.shape[1] or not plan.in_view[span].all():
+            continue
+        interior = plan.fine_penalty[:, span] == 0
+        if not interior.any(axis=0).all():
+            continue
+        seen.append(b)
+        strips.append(cv2.remap(imgs[b], plan.map_x[:, span], plan.map_y[:, span], cv2.INTER_LINEAR))
+        interiors.append(interior)
     if not seen:
         return correlation, spread
-    strips = np.stack([cv2.remap(imgs[b], plan.map_x[:, firsts[b] : firsts[b] + length],
-                                 plan.map_y[:, firsts[b] : firsts[b] + length], cv2.INTER_LINEAR) for b in seen])
-    interior = np.stack([plan.fine_penalty[:, firsts[b] : firsts[b] + length] == 0 for b in seen])
+    interior = np.stack(interiors)
     count = interior.sum(axis=1)
-    ordered = np.sort(np.where(interior, strips.astype(np.float64), np.inf), axis=1)  # interior first
+    ordered = np.sort(np.where(interior, np.stack(strips).astype(np.float64), np.inf), axis=1)  # interior first
     low = np.take_along_axis(ordered, ((count - 1) // 2)[:, None, :], axis=1)[:, 0]
     high = np.take_along_axis(ordered, (count // 2)[:, None, :], axis=1)[:, 0]
     correlation[seen], spread[seen] = profile_periodicity(0.5 * (low + high), step, cfg.stripe_lags_mm, cfg.stripe_detrend_mm)

@@ -176,18 +176,20 @@ _TRAIN = "bright interiors in a row at the tip: metal bands with little body bet
 _LIGHTER = "part-dark stretches go on past the dark run's end (bands blurred into the array's body?)"
 
 
-def _stripes_past_tip(imgs: list[np.ndarray], plan: MeasurePlan, results: dict[int, FrameMeasurement],
-                      contrast: dict[int, float]) -> dict[int, bool]:
-    """Which of the frames measured ok (``results``, by index into ``imgs``) show a regular pattern
-    of stripes past their tip (:func:`~tympani.vision.angles.beyond.stripe_periodicity`), varying
-    by at least ``plan.cfg.stripe_spread`` of the array's ``contrast`` (grey levels)."""
+def _stripes_past_tip(imgs: list[np.ndarray], plan: MeasurePlan, results: list[FrameMeasurement],
+                      contrasts: list[float]) -> np.ndarray:
+    """Which of ``results`` (one per frame of ``imgs``; a bool array in their order) are measured ok and
+    show a regular pattern of stripes past their tip
+    (:func:`~tympani.vision.angles.beyond.stripe_periodicity`), varying by at least
+    ``plan.cfg.stripe_spread`` of the array's contrast (``contrasts``, grey levels)."""
     cfg = plan.cfg
-    ok = [k for k, r in results.items() if r.ok]
-    if not ok:
-        return {}
-    correlation, spread = stripe_periodicity([imgs[k] for k in ok], plan, np.array([results[k].theta_tip for k in ok]), cfg)
-    hit = (correlation >= cfg.stripe_correlation) & (spread >= cfg.stripe_spread * np.array([contrast[k] for k in ok]))
-    return dict(zip(ok, hit.tolist()))
+    hit = np.zeros(len(results), dtype=bool)
+    ok = [i for i, r in enumerate(results) if r.ok]
+    if ok:
+        correlation, spread = stripe_periodicity([imgs[i] for i in ok], plan,
+                                                 np.array([results[i].theta_tip for i in ok]), cfg)
+        hit[ok] = (correlation >= cfg.stripe_correlation) & (spread >= cfg.stripe_spread * np.array(contrasts)[ok])
+    return hit
 
 
 def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasurement]:
@@ -218,8 +220,8 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             measured = [j for j, c in enumerate(lines) if isinstance(c, CentreLine)]
             finals = results_batch(plan, [(edges[j], lines[j], _extras(surveys[found[j]].contrast, lines[j], plan.step_mm))
                                            for j in measured]) if measured else []
-            striped = _stripes_past_tip(imgs, plan, {found[j]: f for j, f in zip(measured, finals)},
-                                        {found[j]: surveys[found[j]].contrast for j in measured})
+            striped = _stripes_past_tip([imgs[found[j]] for j in measured], plan, finals,
+                                        [surveys[found[j]].contrast for j in measured])
             t4 = time.perf_counter()
     except _ERRORS as exc:
         if len(imgs) > 1:
@@ -230,6 +232,7 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
     out: list[FrameMeasurement] = []
     by_frame = {found[j]: j for j in range(len(found))}
     final_of = dict(zip(measured, finals))
+    striped_of = dict(zip(measured, striped.tolist()))
     for k, sv in enumerate(surveys):
         if not isinstance(sv, Survey):
             result = sv
@@ -239,7 +242,7 @@ def _measure_batch(imgs: list[np.ndarray], plan: MeasurePlan) -> list[FrameMeasu
             result.timings.update(survey=share[0], edges=share[1], centre_line=share[2])
         else:
             result = final_of[by_frame[k]]
-            if striped.get(k, False):
+            if striped_of[by_frame[k]]:
                 result = failure(STRIPES_PAST_TIP, contrast=sv.contrast)
             result.timings.update(survey=share[0], edges=share[1], centre_line=share[2], angles=share[3])
         result.extras["time_ms"] = 1e3 * sum(result.timings.values())
